@@ -1,0 +1,126 @@
+"""TD3 (Fujimoto et al., 2018), the behaviour-policy learner of thesis chapter 4.4.3 / Appendix A.
+
+Critic targets use the *target* actor and the *target* twin critics with clipped target-policy
+smoothing::
+
+    a' = clip(pi_targ(s') + clip(eps, -c, c), -1, 1),   eps ~ N(0, sigma_target^2)
+    y  = r + gamma * (1 - terminal) * min_{k=1,2} Q_targ_k(s', a')
+
+both critics regress to ``y`` (sum of the two mean squared errors); every ``policy_delay`` critic
+updates the actor ascends ``Q_1(s, pi(s))`` and the targets move by Polyak averaging with rate
+``tau``. Exploration adds N(0, sigma_explore^2) to the actor's action. Walker episodes end by
+time-out only, so ``terminal`` is always 0 there and time-outs are bootstrapped through.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from mop_core.config import require
+from mop_core.data.buffer import Batch
+from mop_core.nn import DeterministicActor, EnsembleCritic, soft_update
+
+
+@dataclass(frozen=True)
+class TD3Config:
+    """TD3 hyper-parameters (Appendix A holds the thesis's values; see profiles/thesis.yaml)."""
+
+    hidden_sizes: tuple[int, ...] = (256, 256)  # widths of the actor's and each critic's hidden layers
+    layer_norm: bool = False  # first hidden layer Linear -> LayerNorm -> tanh (reference code)
+    learning_rate: float = 3e-4  # Adam, actor and critics
+    batch_size: int = 256
+    gamma: float = 0.99  # discount
+    tau: float = 0.005  # Polyak rate of the target networks
+    exploration_noise: float = 0.2  # std of the Gaussian added to actions while collecting
+    target_noise: float = 0.2  # std of the target-policy smoothing noise
+    target_noise_clip: float = 0.5  # the smoothing noise is clipped to [-clip, clip]
+    policy_delay: int = 2  # critic updates per actor (and target) update
+
+    def __post_init__(self) -> None:
+        require(len(self.hidden_sizes) > 0 and all(h > 0 for h in self.hidden_sizes), "hidden_sizes",
+                "a non-empty list of positive widths", list(self.hidden_sizes))
+        require(self.learning_rate > 0, "learning_rate", "a positive number", self.learning_rate)
+        require(self.batch_size > 0, "batch_size", "a positive integer", self.batch_size)
+        require(0 <= self.gamma < 1, "gamma", "a discount in [0, 1)", self.gamma)
+        require(0 < self.tau <= 1, "tau", "a rate in (0, 1]", self.tau)
+        require(self.exploration_noise >= 0, "exploration_noise", "a non-negative std", self.exploration_noise)
+        require(self.target_noise >= 0, "target_noise", "a non-negative std", self.target_noise)
+        require(self.target_noise_clip >= 0, "target_noise_clip", "a non-negative clip", self.target_noise_clip)
+        require(self.policy_delay >= 1, "policy_delay", "an integer >= 1", self.policy_delay)
+
+
+def smoothed_target_action(target_action: torch.Tensor, noise: torch.Tensor, noise_clip: float) -> torch.Tensor:
+    """a' = clip(pi_targ(s') + clip(noise, -c, c), -1, 1)."""
+    return (target_action + noise.clamp(-noise_clip, noise_clip)).clamp(-1.0, 1.0)
+
+
+def td3_target(rewards: torch.Tensor, terminals: torch.Tensor, next_q: torch.Tensor, gamma: float) -> torch.Tensor:
+    """y = r + gamma * (1 - terminal) * min over the critics' axis 0 of ``next_q [2, B]``."""
+    return rewards + gamma * (1.0 - terminals) * next_q.min(dim=0).values
+
+
+class TD3:
+    """A TD3 learner: ``act`` for collection, ``update(batch)`` for one gradient step."""
+
+    def __init__(self, config: TD3Config, obs_dim: int, act_dim: int, seed: int,
+                 device: torch.device | str = "cpu"):
+        self.config = config
+        self.device = torch.device(device)
+        torch.manual_seed(seed)  # network initialisation
+        self.actor = DeterministicActor(obs_dim, act_dim, config.hidden_sizes, config.layer_norm).to(self.device)
+        self.critic = EnsembleCritic(obs_dim, act_dim, config.hidden_sizes, 2, config.layer_norm).to(self.device)
+        self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
+        self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
+        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=config.learning_rate)
+        self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=config.learning_rate)
+        self.generator = torch.Generator(self.device).manual_seed(seed)
+        self.updates = 0
+
+    @torch.no_grad()
+    def act(self, observations: np.ndarray, noise_std: float = 0.0) -> np.ndarray:
+        """pi(s) (+ N(0, noise_std^2), clipped to [-1, 1]) for a batch ``[K, obs]`` or one state."""
+        obs = torch.as_tensor(np.asarray(observations, dtype=np.float32), device=self.device)
+        action = self.actor(obs)
+        if noise_std > 0:
+            noise = torch.randn(action.shape, generator=self.generator, device=self.device) * noise_std
+            action = (action + noise).clamp(-1.0, 1.0)
+        return action.cpu().numpy()
+
+    @torch.no_grad()
+    def compute_target(self, batch: Batch) -> torch.Tensor:
+        """The critic regression target y of the module docstring (target networks only)."""
+        next_action = self.actor_target(batch.next_observations)
+        noise = torch.randn(next_action.shape, generator=self.generator, device=self.device) * self.config.target_noise
+        next_action = smoothed_target_action(next_action, noise, self.config.target_noise_clip)
+        next_q = self.critic_target(batch.next_observations, next_action)
+        return td3_target(batch.rewards, batch.terminals, next_q, self.config.gamma)
+
+    def update(self, batch: Batch) -> dict[str, float]:
+        """One critic step; every ``policy_delay``-th call also an actor step and target update."""
+        target = self.compute_target(batch)
+        q = self.critic(batch.observations, batch.actions)  # [2, B]
+        critic_loss = (q - target).pow(2).mean(dim=1).sum()
+        self.critic_optimizer.zero_grad(set_to_none=True)
+        critic_loss.backward()
+        self.critic_optimizer.step()
+        self.updates += 1
+        metrics = {"critic_loss": critic_loss.item(), "q_mean": q.mean().item()}
+        if self.updates % self.config.policy_delay == 0:
+            self.critic.requires_grad_(False)  # the actor step needs dQ/da only
+            actor_loss = -self.critic(batch.observations, self.actor(batch.observations))[0].mean()
+            self.actor_optimizer.zero_grad(set_to_none=True)
+            actor_loss.backward()
+            self.actor_optimizer.step()
+            self.critic.requires_grad_(True)
+            soft_update(self.actor_target, self.actor, self.config.tau)
+            soft_update(self.critic_target, self.critic, self.config.tau)
+            metrics["actor_loss"] = actor_loss.item()
+        return metrics
+
+    def actor_state(self) -> dict[str, torch.Tensor]:
+        """The actor's weights on the CPU (a behaviour-policy snapshot)."""
+        return {k: v.detach().cpu().clone() for k, v in self.actor.state_dict().items()}

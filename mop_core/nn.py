@@ -1,0 +1,117 @@
+"""Networks: MLPs, the vectorised ensemble linear layer, actors and ensemble critics.
+
+:class:`EnsembleLinear` holds E independent linear layers as one weight ``[E, in, out]`` and one
+bias ``[E, 1, out]``; ``y_e = x_e W_e + b_e`` for every member in one batched matmul, so an
+ensemble of critics is one module with one loss, one backward and one optimiser step (as in
+CORL's ``VectorizedLinear``). TD3's twin critics are an ensemble of two; PBRL's critics an ensemble
+of E. Each member is initialised like ``torch.nn.Linear``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+
+class EnsembleLinear(nn.Module):
+    """E independent affine maps applied to inputs ``[E, B, in]`` -> ``[E, B, out]``."""
+
+    def __init__(self, ensemble_size: int, in_features: int, out_features: int):
+        super().__init__()
+        self.ensemble_size, self.in_features, self.out_features = ensemble_size, in_features, out_features
+        self.weight = nn.Parameter(torch.empty(ensemble_size, in_features, out_features))
+        self.bias = nn.Parameter(torch.empty(ensemble_size, 1, out_features))
+        self.reset_parameters()
+
+    def reset_parameters(self) -> None:
+        # torch.nn.Linear's init per member: U(-1/sqrt(in), 1/sqrt(in)) for weight and bias.
+        bound = 1.0 / math.sqrt(self.in_features)
+        nn.init.uniform_(self.weight, -bound, bound)
+        nn.init.uniform_(self.bias, -bound, bound)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.baddbmm(self.bias, x, self.weight)
+
+    def extra_repr(self) -> str:
+        return f"ensemble_size={self.ensemble_size}, in_features={self.in_features}, out_features={self.out_features}"
+
+
+class EnsembleLayerNorm(nn.Module):
+    """LayerNorm over the last dimension with a separate affine transform per ensemble member."""
+
+    def __init__(self, ensemble_size: int, features: int, eps: float = 1e-5):
+        super().__init__()
+        self.eps = eps
+        self.weight = nn.Parameter(torch.ones(ensemble_size, 1, features))
+        self.bias = nn.Parameter(torch.zeros(ensemble_size, 1, features))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return F.layer_norm(x, x.shape[-1:], eps=self.eps) * self.weight + self.bias
+
+
+def mlp(in_features: int, hidden_sizes: Sequence[int], out_features: int, layer_norm: bool = False,
+        ensemble_size: int | None = None) -> nn.Sequential:
+    """Fully connected ReLU network; optionally an ensemble of E such networks.
+
+    With ``layer_norm`` the first hidden layer is Linear -> LayerNorm -> tanh (the trunk of the
+    reference TD3/DrQ-v2 code), the remaining hidden layers Linear -> ReLU.
+    """
+    if not hidden_sizes:
+        raise ValueError("hidden_sizes: expected at least one hidden layer")
+
+    def linear(i: int, o: int) -> nn.Module:
+        return nn.Linear(i, o) if ensemble_size is None else EnsembleLinear(ensemble_size, i, o)
+
+    layers: list[nn.Module] = []
+    sizes = [in_features, *hidden_sizes]
+    for index, (i, o) in enumerate(zip(sizes[:-1], sizes[1:])):
+        layers.append(linear(i, o))
+        if index == 0 and layer_norm:
+            layers.append(nn.LayerNorm(o) if ensemble_size is None else EnsembleLayerNorm(ensemble_size, o))
+            layers.append(nn.Tanh())
+        else:
+            layers.append(nn.ReLU())
+    layers.append(linear(sizes[-1], out_features))
+    return nn.Sequential(*layers)
+
+
+class DeterministicActor(nn.Module):
+    """a = tanh(f(s)): a deterministic policy with actions in [-1, 1]."""
+
+    def __init__(self, obs_dim: int, act_dim: int, hidden_sizes: Sequence[int], layer_norm: bool = False):
+        super().__init__()
+        self.net = mlp(obs_dim, hidden_sizes, act_dim, layer_norm)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return torch.tanh(self.net(obs))
+
+
+class EnsembleCritic(nn.Module):
+    """E Q-functions Q_e(s, a) evaluated together: ``(obs [B, o], act [B, a]) -> [E, B]``.
+
+    Inputs may also carry a leading ensemble dimension (``[E, B, o]``) when each member should see
+    a different batch (e.g. per-member actions).
+    """
+
+    def __init__(self, obs_dim: int, act_dim: int, hidden_sizes: Sequence[int], ensemble_size: int,
+                 layer_norm: bool = False):
+        super().__init__()
+        self.ensemble_size = ensemble_size
+        self.net = mlp(obs_dim + act_dim, hidden_sizes, 1, layer_norm, ensemble_size=ensemble_size)
+
+    def forward(self, obs: torch.Tensor, act: torch.Tensor) -> torch.Tensor:
+        x = torch.cat([obs, act], dim=-1)
+        if x.dim() == 2:
+            x = x.unsqueeze(0).expand(self.ensemble_size, -1, -1)
+        return self.net(x).squeeze(-1)
+
+
+@torch.no_grad()
+def soft_update(target: nn.Module, source: nn.Module, tau: float) -> None:
+    """Polyak averaging: theta_target <- (1 - tau) * theta_target + tau * theta_source."""
+    for t, s in zip(target.parameters(), source.parameters()):
+        t.lerp_(s, tau)

@@ -1,0 +1,49 @@
+"""Process-level settings: torch device, thread counts, seeding, progress bars."""
+
+from __future__ import annotations
+
+import os
+import random
+
+import numpy as np
+import torch
+
+from mop_core.config import ConfigError
+
+
+def resolve_device(name: str, key: str = "device") -> torch.device:
+    """``auto`` picks CUDA when present, else the CPU; ``cpu``/``cuda``/``cuda:N`` are taken as given."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cpu" or name.startswith("cuda"):
+        if name.startswith("cuda") and not torch.cuda.is_available():
+            raise ConfigError(f"{key}: {name!r} requested but CUDA is not available; use 'auto' or 'cpu'")
+        return torch.device(name)
+    raise ConfigError(f"{key}: expected 'auto', 'cpu' or 'cuda[:N]', got {name!r}")
+
+
+def set_threads(threads: int) -> None:
+    """Pin torch (and OpenMP/MKL of child libraries) to ``threads`` threads in this process.
+
+    Two processes with two OpenMP threads each on two cores run many times slower than two
+    single-threaded processes, so parallel workers call this with 1 before any torch work.
+    """
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ[var] = str(threads)
+    torch.set_num_threads(threads)
+    try:
+        torch.set_num_interop_threads(threads)
+    except RuntimeError:  # can only be set once, before any inter-op parallel work started
+        pass
+
+
+def seed_everything(seed: int) -> None:
+    """Seed Python, NumPy's legacy global and torch's global generators (for library code that uses them)."""
+    random.seed(seed)
+    np.random.seed(seed % 2**32)
+    torch.manual_seed(seed)
+
+
+def progress_enabled(requested: bool) -> bool:
+    """Progress bars show when requested, unless ``MOP_PROGRESS=0`` is set (CI, tests)."""
+    return requested and os.environ.get("MOP_PROGRESS", "1") != "0"

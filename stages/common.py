@@ -1,0 +1,79 @@
+"""What every stage script shares: reading params.yaml, the study settings, the output layout.
+
+Stage scripts are the only code that reads params.yaml and decides paths; mop_core receives typed
+configs and explicit paths.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from mop_core.config import ConfigError, from_mapping, require
+from mop_core.tasks import check_task_list
+
+PARAMS = Path("params.yaml")
+DATA = Path("data")
+RESULTS = Path("results")
+
+
+@dataclass(frozen=True)
+class StudyConfig:
+    """The study grid and process settings shared by all stages."""
+
+    tasks: tuple[str, ...]  # walker tasks of the study (any subset of the registry, any order)
+    seed: int = 0  # study seed; every task/stage derives its own seeds from it
+    episode_length: int = 1000  # control steps per walker episode (1000 = dm_control's 25 s)
+    device: str = "auto"  # "auto" (CUDA if present), "cpu", "cuda[:N]"
+    progress: bool = True  # tqdm progress bars (MOP_PROGRESS=0 switches them off)
+
+    def __post_init__(self) -> None:
+        check_task_list(self.tasks, "tasks")
+        require(self.seed >= 0, "seed", "a non-negative integer", self.seed)
+        require(self.episode_length > 0, "episode_length", "a positive integer", self.episode_length)
+
+
+def load_params(path: Path = PARAMS) -> dict[str, Any]:
+    if not path.is_file():
+        raise ConfigError(f"{path}: parameter file not found (run from the repository root)")
+    with path.open() as f:
+        params = yaml.safe_load(f)
+    if not isinstance(params, dict):
+        raise ConfigError(f"{path}: expected a mapping of sections, got {type(params).__name__}")
+    return params
+
+
+def section(params: dict[str, Any], name: str) -> Any:
+    if name not in params:
+        raise ConfigError(f"{name}: missing section in {PARAMS}")
+    return params[name]
+
+
+def study_config(params: dict[str, Any]) -> StudyConfig:
+    return from_mapping(StudyConfig, section(params, "study"), "study")
+
+
+# ---- output layout -------------------------------------------------------------------------------
+def behaviour_checkpoint(task: str, level: str) -> Path:
+    return DATA / "behaviour" / task / f"{level}.pt"
+
+
+def dataset_file(task: str, level: str) -> Path:
+    return DATA / "datasets" / f"{task}-{level}.hdf5"
+
+
+def relabel_file(task: str, level: str) -> Path:
+    return DATA / "relabelled" / f"{task}-{level}.hdf5"
+
+
+def run_stage(main) -> None:
+    """Run a stage's ``main``; a configuration error prints one clear line and exits with status 2."""
+    try:
+        main()
+    except ConfigError as err:
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
