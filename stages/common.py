@@ -13,6 +13,7 @@ from typing import Any
 
 import yaml
 
+from mop_core.collect import LEVELS
 from mop_core.config import ConfigError, from_mapping, require
 from mop_core.tasks import check_task_list
 
@@ -26,6 +27,7 @@ class StudyConfig:
     """The study grid and process settings shared by all stages."""
 
     tasks: tuple[str, ...]  # walker tasks of the study (any subset of the registry, any order)
+    levels: tuple[str, ...] = LEVELS  # dataset levels later stages study (collect always writes all)
     seed: int = 0  # study seed; every task/stage derives its own seeds from it
     episode_length: int = 1000  # control steps per walker episode (1000 = dm_control's 25 s)
     device: str = "auto"  # "auto" (CUDA if present), "cpu", "cuda[:N]"
@@ -33,6 +35,10 @@ class StudyConfig:
 
     def __post_init__(self) -> None:
         check_task_list(self.tasks, "tasks")
+        for i, level in enumerate(self.levels):
+            require(level in LEVELS, f"levels[{i}]", f"one of {', '.join(LEVELS)}", level)
+        require(len(self.levels) > 0 and len(set(self.levels)) == len(self.levels), "levels",
+                "a non-empty list without repeats", list(self.levels))
         require(self.seed >= 0, "seed", "a non-negative integer", self.seed)
         require(self.episode_length > 0, "episode_length", "a positive integer", self.episode_length)
 

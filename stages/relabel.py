@@ -11,7 +11,6 @@ import time
 
 from common import RESULTS, dataset_file, load_params, relabel_file, run_stage, section, study_config
 
-from mop_core.collect import LEVELS
 from mop_core.config import ConfigError, from_mapping
 from mop_core.data import write_json
 from mop_core.relabel import RelabelConfig, relabel_dataset
@@ -22,7 +21,7 @@ def main() -> None:
     params = load_params()
     study = study_config(params)
     config = from_mapping(RelabelConfig, section(params, "relabel"), "relabel")
-    sources = [(task, level) for task in study.tasks for level in LEVELS]
+    sources = [(task, level) for task in study.tasks for level in study.levels]
     missing = [str(dataset_file(t, lv)) for t, lv in sources if not dataset_file(t, lv).is_file()]
     if missing:
         raise ConfigError(f"study.tasks: no dataset for {', '.join(missing)}; run the collect stage first")

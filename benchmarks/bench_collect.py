@@ -1,0 +1,149 @@
+"""Speed of the collect and relabel building blocks, measured in one run on this machine.
+
+Prints: dm_control env steps/s; batched stepping of many walkers (our VectorWalkerEnv with a
+batched policy, and MuJoCo's multi-threaded ``mujoco.rollout``) with ratios to one env; relabel
+transitions/s (vectorised formula vs physics replay, target >= 1M/s vectorised); TD3 updates/s at
+the quick (params.yaml) and thesis (profiles/thesis.yaml) sizes. Each figure is the median of a
+few timed repeats after a warm-up. Run: ``python benchmarks/bench_collect.py [--quick-only]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import torch
+import yaml
+from mujoco import rollout
+
+from mop_core.agents.td3 import TD3, TD3Config
+from mop_core.config import from_mapping
+from mop_core.data import ReplayBuffer
+from mop_core.data.hdf5 import Dataset
+from mop_core.envs import VectorWalkerEnv, WalkerEnv
+from mop_core.relabel import relabel_rewards
+from mop_core.runtime import set_threads
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def rate(fn, units: float, repeats: int = 3) -> float:
+    """Median units/s over ``repeats`` timed calls of ``fn`` (after one warm-up call)."""
+    fn()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return units / statistics.median(times)
+
+
+def env_steps_per_second(steps: int = 2000) -> float:
+    env = WalkerEnv("walk", 0)
+    env.reset()
+    actions = np.random.default_rng(0).uniform(-1, 1, (steps, 6))
+
+    def run():
+        for a in actions:
+            env.step(a)
+    return rate(run, steps)
+
+
+def vector_env_steps_per_second(num_envs: int = 16, steps: int = 200) -> float:
+    env = VectorWalkerEnv("walk", list(range(num_envs)), episode_length=10**9)
+    env.reset()
+    actor = torch.nn.Sequential(torch.nn.Linear(24, 256), torch.nn.ReLU(), torch.nn.Linear(256, 6), torch.nn.Tanh())
+    obs = env.reset()
+
+    def run():
+        nonlocal obs
+        for _ in range(steps):
+            with torch.no_grad():
+                action = actor(torch.as_tensor(obs, dtype=torch.float32)).numpy()
+            obs = env.step(action).observation
+    return rate(run, num_envs * steps)
+
+
+def mujoco_rollout_steps_per_second(num_walkers: int = 64, control_steps: int = 100, threads: int = 2) -> float:
+    """Open-loop control steps/s of many walkers in MuJoCo's C rollout (10 physics steps each)."""
+    physics = WalkerEnv("walk", 0).physics
+    model = physics.model.ptr
+    datas = [mujoco.MjData(model) for _ in range(threads)]
+    state_size = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    initial = np.zeros((num_walkers, state_size))
+    mujoco.mj_getState(model, physics.data.ptr, initial[0], mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    initial[:] = initial[0]
+    control = np.repeat(np.random.default_rng(0).uniform(-1, 1, (num_walkers, control_steps, 1, 6)), 10, axis=2)
+    control = control.reshape(num_walkers, control_steps * 10, 6)
+
+    def run():
+        rollout.rollout(model, datas, initial, control, persistent_pool=True)
+    return rate(run, num_walkers * control_steps)
+
+
+def relabel_rates(n: int = 1_000_000, n_physics: int = 5000) -> tuple[float, float]:
+    rng = np.random.default_rng(0)
+    physics = WalkerEnv("walk", 0)
+    states = []
+    physics.reset()
+    for _ in range(n_physics):
+        states.append(physics.step(rng.uniform(-1, 1, 6)).physics)
+    features = np.column_stack([rng.uniform(0, 1.5, n), rng.uniform(-1, 1, n), rng.normal(0, 2, n)])
+    big = Dataset(Path("bench"), {"reward_features": features}, {})
+    small = Dataset(Path("bench"), {"next_physics": np.array(states)}, {})
+    tasks = ["stand", "walk", "run"]
+    vectorised = rate(lambda: relabel_rewards(big, tasks, "vectorised"), n * len(tasks))
+    replay = rate(lambda: relabel_rewards(small, tasks, "physics"), n_physics * len(tasks), repeats=1)
+    return vectorised, replay
+
+
+def td3_updates_per_second(config: TD3Config, updates: int) -> float:
+    agent = TD3(config, 24, 6, seed=0)
+    buffer = ReplayBuffer(20_000, 24, 6, 18, 3)
+    buffer.observations.normal_(), buffer.next_observations.normal_(), buffer.actions.uniform_(-1, 1)
+    buffer.size = buffer.capacity
+
+    def run():
+        for _ in range(updates):
+            agent.update(buffer.sample(config.batch_size, agent.generator))
+    return rate(run, updates)
+
+
+def td3_config(profile: Path) -> TD3Config:
+    return from_mapping(TD3Config, yaml.safe_load(profile.read_text())["collect"]["td3"], "collect.td3")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick-only", action="store_true", help="skip the (slow) thesis-size TD3 update")
+    args = parser.parse_args()
+    set_threads(1)
+    print(f"torch {torch.__version__}, mujoco {mujoco.__version__}, 1 torch thread per measurement")
+    single = env_steps_per_second()
+    print(f"dm_control walker, one env:                 {single:10,.0f} steps/s")
+    vector = vector_env_steps_per_second()
+    print(f"VectorWalkerEnv, 16 envs + batched policy:  {vector:10,.0f} steps/s  ({vector / single:.2f}x one env)")
+    for threads in (1, 2):
+        batched = mujoco_rollout_steps_per_second(threads=threads)
+        print(f"mujoco.rollout, 64 walkers, {threads} thread(s):    {batched:10,.0f} steps/s  "
+              f"({batched / single:.2f}x one env; open loop, no observations)")
+    vectorised, replay = relabel_rates()
+    print(f"relabel, vectorised formula:                {vectorised:10,.0f} transitions/s (target >= 1,000,000)")
+    print(f"relabel, physics replay:                    {replay:10,.0f} transitions/s  "
+          f"(vectorised is {vectorised / replay:,.0f}x faster)")
+    quick = td3_config(ROOT / "params.yaml")
+    q = td3_updates_per_second(quick, 100)
+    print(f"TD3 update, quick size {list(quick.hidden_sizes)} batch {quick.batch_size}: {q:8.1f} updates/s")
+    if not args.quick_only:
+        thesis = td3_config(ROOT / "profiles" / "thesis.yaml")
+        t = td3_updates_per_second(thesis, 5)
+        print(f"TD3 update, thesis size {list(thesis.hidden_sizes)} batch {thesis.batch_size}: {t:8.1f} updates/s "
+              f"(quick is {q / t:.0f}x faster per update)")
+
+
+if __name__ == "__main__":
+    main()

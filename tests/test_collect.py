@@ -1,0 +1,87 @@
+"""The collect step on the tiny profile: snapshots, datasets, determinism, parameter errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from conftest import collect_paths
+from mop_core.collect import LEVELS, CollectConfig, ScheduleConfig, collect_task, task_seeds
+from mop_core.config import ConfigError, from_mapping
+from mop_core.data import read_dataset
+
+
+def test_collect_writes_three_valid_datasets(tiny_collected, tiny_collect_config):
+    root, summary = tiny_collected
+    cfg = tiny_collect_config
+    length = cfg.episode_length
+    for level in LEVELS:
+        ds = read_dataset(root / "datasets" / f"stand-{level}.hdf5", verify_checksum=True)
+        assert ds.attrs["task"] == "stand" and ds.attrs["level"] == level
+        metrics = json.loads((root / "metrics" / f"stand-{level}.json").read_text())
+        assert metrics["transitions"] == len(ds)
+    expert = read_dataset(root / "datasets" / "stand-expert.hdf5")
+    assert len(expert) == cfg.datasets.expert_episodes * length
+    replay = read_dataset(root / "datasets" / "stand-medium_replay.hdf5")
+    assert len(replay) == cfg.schedule.warmup_steps + cfg.schedule.medium_step  # all seen up to medium
+    medium_ckpt = torch.load(root / "behaviour" / "stand" / "medium.pt", weights_only=False)
+    expert_ckpt = torch.load(root / "behaviour" / "stand" / "expert.pt", weights_only=False)
+    assert medium_ckpt["gradient_steps"] == cfg.schedule.medium_step
+    assert expert_ckpt["gradient_steps"] == cfg.schedule.total_steps
+    assert expert.attrs["behaviour_sha256"] == expert_ckpt["sha256"] != medium_ckpt["sha256"]
+    assert summary["snapshots"]["expert"]["return_mean"] == expert_ckpt["return_mean"]
+    curve = (root / "curves" / "stand.tsv").read_text().splitlines()
+    assert curve[0].startswith("step\tenv_step\treturn_mean")
+    assert len(curve) > 2
+
+
+def test_same_seed_gives_byte_identical_datasets(tiny_collected, tiny_collect_config, tmp_path):
+    root, _ = tiny_collected
+    collect_task("stand", tiny_collect_config, 0, collect_paths(tmp_path, "stand"))
+    for level in LEVELS:
+        name = f"stand-{level}.hdf5"
+        assert (tmp_path / "datasets" / name).read_bytes() == (root / "datasets" / name).read_bytes()
+
+
+def test_task_seeds_do_not_depend_on_other_tasks():
+    assert task_seeds(0, "walk") == task_seeds(0, "walk")
+    assert task_seeds(0, "walk") != task_seeds(0, "stand") != task_seeds(1, "stand")
+
+
+def test_medium_by_target_return(tiny_collect_config, tmp_path):
+    cfg = tiny_collect_config
+    schedule = ScheduleConfig(**{**cfg.schedule.__dict__, "medium_target_return": -1.0})
+    config = CollectConfig(cfg.td3, schedule, cfg.datasets, cfg.episode_length)
+    summary = collect_task("walk", config, 0, collect_paths(tmp_path, "walk"))
+    # every return is >= -1, so the first evaluation is the medium snapshot
+    assert summary["snapshots"]["medium"]["gradient_steps"] == cfg.schedule.eval_every
+    replay = read_dataset(tmp_path / "datasets" / "walk-medium_replay.hdf5")
+    assert len(replay) == cfg.schedule.warmup_steps + cfg.schedule.eval_every
+    assert replay.arrays["timeouts"][-1]
+
+
+@pytest.mark.parametrize("key,value,message", [
+    ("schedule.medium_step", 400, r"collect.schedule.medium_step: expected fewer gradient steps than total_steps=300"),
+    ("schedule.total_steps", 0, r"collect.schedule.total_steps: expected a positive integer"),
+    ("datasets.expert_episodes", -2, r"collect.datasets.expert_episodes: expected a positive integer"),
+    ("td3.hidden_sizes", [0, 4], r"collect.td3.hidden_sizes: expected a non-empty list of positive widths"),
+    ("td3.batch_size", "big", r"collect.td3.batch_size: expected an integer"),
+    ("td3.learnin_rate", 0.1, r"collect.td3.learnin_rate: unknown parameter"),
+])
+def test_bad_parameters_name_the_key(tiny_params, key, value, message):
+    raw = json.loads(json.dumps({k: v for k, v in tiny_params["collect"].items() if k != "parallel"}))
+    section, name = key.split(".")
+    raw[section][name] = value
+    with pytest.raises(ConfigError, match=message):
+        from_mapping(CollectConfig, raw, "collect")
+
+
+def test_rollout_returns_match_stored_rewards(tiny_collected):
+    root, summary = tiny_collected
+    ds = read_dataset(root / "datasets" / "stand-expert.hdf5")
+    episode_returns = ds.arrays["rewards"].reshape(-1, ds.attrs["episode_length"]).sum(1)
+    metrics = summary["datasets"]["expert"]
+    assert np.isclose(episode_returns.mean(), metrics["return_mean"], rtol=1e-5)
