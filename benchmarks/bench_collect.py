@@ -53,10 +53,16 @@ def env_steps_per_second(steps: int = 2000) -> float:
     return rate(run, steps)
 
 
+def _actor() -> torch.nn.Module:
+    torch.manual_seed(0)
+    return torch.nn.Sequential(torch.nn.Linear(24, 256), torch.nn.ReLU(), torch.nn.Linear(256, 256), torch.nn.ReLU(),
+                               torch.nn.Linear(256, 6), torch.nn.Tanh())
+
+
 def vector_env_steps_per_second(num_envs: int = 16, steps: int = 200) -> float:
+    """Closed-loop rollout steps/s: ``num_envs`` walkers, one policy forward per control step."""
     env = VectorWalkerEnv("walk", list(range(num_envs)), episode_length=10**9)
-    env.reset()
-    actor = torch.nn.Sequential(torch.nn.Linear(24, 256), torch.nn.ReLU(), torch.nn.Linear(256, 6), torch.nn.Tanh())
+    actor = _actor()
     obs = env.reset()
 
     def run():
@@ -125,8 +131,11 @@ def main() -> None:
     print(f"torch {torch.__version__}, mujoco {mujoco.__version__}, 1 torch thread per measurement")
     single = env_steps_per_second()
     print(f"dm_control walker, one env:                 {single:10,.0f} steps/s")
+    one_policy = vector_env_steps_per_second(num_envs=1, steps=1000)
+    print(f"one env + a 256x256 policy per step:        {one_policy:10,.0f} steps/s")
     vector = vector_env_steps_per_second()
-    print(f"VectorWalkerEnv, 16 envs + batched policy:  {vector:10,.0f} steps/s  ({vector / single:.2f}x one env)")
+    print(f"VectorWalkerEnv, 16 envs + batched policy:  {vector:10,.0f} steps/s  ({vector / one_policy:.2f}x one env "
+          f"+ policy; {vector / single:.2f}x the bare env)")
     for threads in (1, 2):
         batched = mujoco_rollout_steps_per_second(threads=threads)
         print(f"mujoco.rollout, 64 walkers, {threads} thread(s):    {batched:10,.0f} steps/s  "
