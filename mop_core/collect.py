@@ -158,7 +158,8 @@ def train_behaviour(task: str, config: CollectConfig, seed: int, device: torch.d
     sched, seeds = config.schedule, task_seeds(seed, task)
     env = WalkerEnv(task, seeds["train_env"], config.episode_length)
     agent = TD3(config.td3, OBS_DIM, ACT_DIM, seeds["agent"], device)
-    rng = np.random.default_rng(seeds["agent"])
+    rng = np.random.default_rng(seeds["agent"])  # warm-up actions
+    sampler = torch.Generator().manual_seed(seeds["agent"])  # replay minibatches (CPU, whatever the device)
     buffer = ReplayBuffer(sched.warmup_steps + sched.total_steps, OBS_DIM, ACT_DIM, PHYSICS_DIM, len(REWARD_FEATURES))
     eval_seeds = _eval_seeds(seeds["eval"], sched.eval_episodes)
     policy = lambda o: agent.act(o).astype(np.float64)  # noqa: E731
@@ -181,7 +182,7 @@ def train_behaviour(task: str, config: CollectConfig, seed: int, device: torch.d
         obs = env.reset() if step.timeout else step.observation
         if t < sched.warmup_steps:
             continue
-        last_losses = last_losses | agent.update(buffer.sample(config.td3.batch_size, agent.generator))
+        last_losses = last_losses | agent.update(buffer.sample(config.td3.batch_size, sampler))
         g = agent.updates
         bar.update(1)
         if g % sched.eval_every == 0 or g == sched.total_steps or g == sched.medium_step:

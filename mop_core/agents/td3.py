@@ -101,6 +101,7 @@ class TD3:
 
     def update(self, batch: Batch) -> dict[str, float]:
         """One critic step; every ``policy_delay``-th call also an actor step and target update."""
+        batch = batch.to(self.device)
         target = self.compute_target(batch)
         q = self.critic(batch.observations, batch.actions)  # [2, B]
         critic_loss = (q - target).pow(2).mean(dim=1).sum()

@@ -18,6 +18,10 @@ class Batch:
     next_observations: torch.Tensor  # [B, obs]
     terminals: torch.Tensor  # [B]
 
+    def to(self, device: torch.device) -> "Batch":
+        return Batch(*(t.to(device, non_blocking=True) for t in
+                       (self.observations, self.actions, self.rewards, self.next_observations, self.terminals)))
+
 
 @dataclass
 class TransitionTensors:
@@ -89,6 +93,7 @@ class ReplayBuffer:
         self.size += 1
 
     def sample(self, batch_size: int, generator: torch.Generator) -> Batch:
+        """A uniform minibatch on the CPU (``generator`` must be a CPU generator)."""
         index = torch.randint(self.size, (batch_size,), generator=generator)
         return Batch(self.observations[index], self.actions[index], self.rewards[index],
                      self.next_observations[index], self.terminals[index])
