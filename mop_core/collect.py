@@ -263,13 +263,15 @@ def collect_task(task: str, config: CollectConfig, seed: int, paths: CollectPath
                                        ("gradient_steps", "env_steps", "return_mean", "return_std", "sha256")}
 
     size = config.datasets
+
+    def rollouts(level: str, episodes: int) -> dict[str, np.ndarray]:
+        base = seeds[f"{level}_rollout"]
+        return collect_episodes(policies[level], task, _eval_seeds(base, episodes), config.episode_length,
+                                size.rollout_envs, size.action_noise, np.random.default_rng(base))
+
     level_arrays = {
-        "expert": lambda: collect_episodes(policies["expert"], task, _eval_seeds(seeds["expert_rollout"], size.expert_episodes),
-                                           config.episode_length, size.rollout_envs, size.action_noise,
-                                           np.random.default_rng(seeds["expert_rollout"])),
-        "medium": lambda: collect_episodes(policies["medium"], task, _eval_seeds(seeds["medium_rollout"], size.medium_episodes),
-                                           config.episode_length, size.rollout_envs, size.action_noise,
-                                           np.random.default_rng(seeds["medium_rollout"])),
+        "expert": lambda: rollouts("expert", size.expert_episodes),
+        "medium": lambda: rollouts("medium", size.medium_episodes),
         "medium_replay": lambda: buffer.arrays(end=medium.env_steps),
     }
     for level in LEVELS:

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 import torch
-
 from conftest import collect_paths
+
 from mop_core.collect import LEVELS, CollectConfig, ScheduleConfig, collect_task, task_seeds
 from mop_core.config import ConfigError, from_mapping
 from mop_core.data import read_dataset

@@ -11,7 +11,6 @@ from pathlib import Path
 
 import pytest
 import yaml
-
 from conftest import ROOT, TINY_PROFILE
 
 pytestmark = pytest.mark.slow

@@ -1,8 +1,16 @@
 """Offline data: the HDF5 dataset schema with validated reads, and in-memory tensor buffers."""
 
 from mop_core.data.buffer import Batch, ReplayBuffer, TransitionTensors
-from mop_core.data.hdf5 import (Dataset, DatasetError, atomic_path, read_dataset, read_relabel, write_dataset,
-                                write_json, write_relabel)
+from mop_core.data.hdf5 import (
+                                Dataset,
+                                DatasetError,
+                                atomic_path,
+                                read_dataset,
+                                read_relabel,
+                                write_dataset,
+                                write_json,
+                                write_relabel,
+)
 
 __all__ = ["Batch", "Dataset", "DatasetError", "ReplayBuffer", "TransitionTensors", "atomic_path", "read_dataset",
            "read_relabel", "write_dataset", "write_json", "write_relabel"]
