@@ -195,8 +195,8 @@ def test_actor_objective_is_minus_the_ensemble_minimum_and_trains_every_actor_pa
     agent = PBRL(config, 24, 6, seed=0)
     batch = _batch()
     agent.generator.manual_seed(0)
-    loss, metrics = actor_objective(agent.actor, batch.observations, batch.observations, agent.critic,
-                                    config.entropy_weight, agent.generator)
+    loss, metrics, _ = actor_objective(agent.actor, batch.observations, batch.observations, agent.critic,
+                                       config.entropy_weight, agent.generator)
     loss.backward()
     for name, p in agent.actor.named_parameters():
         assert p.grad is not None and p.grad.abs().sum() > 0, name
@@ -209,6 +209,19 @@ def test_actor_objective_is_minus_the_ensemble_minimum_and_trains_every_actor_pa
             actions, entropy = agent.actor(batch.observations), torch.zeros(8)
         q_min = agent.critic.critic(batch.observations, actions).min(0).values
         torch.testing.assert_close(loss, -(q_min + config.entropy_weight * entropy).mean())
+
+
+def test_entropy_temperature_moves_alpha_towards_the_target_entropy():
+    config = PBRLConfig(**{**CONFIG.__dict__, "actor": "gaussian", "entropy_weight": 0.5, "target_entropy": -6.0})
+    agent = PBRL(config, 24, 6, seed=0)
+    assert agent.temperature.value == pytest.approx(0.5)
+    for i in range(6):  # a fresh actor's entropy is far above -6: alpha must fall
+        agent.update(_batch(i))
+    assert agent.temperature.value < 0.5
+    fixed = PBRL(PBRLConfig(**{**CONFIG.__dict__, "actor": "gaussian", "entropy_weight": 0.5}), 24, 6, seed=0)
+    for i in range(6):
+        fixed.update(_batch(i))
+    assert fixed.temperature.value == 0.5
 
 
 def test_gaussian_actor_samples_within_bounds_with_the_closed_form_entropy():
@@ -239,11 +252,13 @@ def test_same_seed_same_weights_other_seed_other_weights(actor):
     assert not all(torch.equal(x, y) for x, y in zip(a, c))
 
 
-def test_state_dict_round_trip_continues_identically():
-    agent = PBRL(CONFIG, 24, 6, seed=0)
+@pytest.mark.parametrize("actor", ["deterministic", "gaussian"])
+def test_state_dict_round_trip_continues_identically(actor):
+    config = PBRLConfig(**{**CONFIG.__dict__, "actor": actor, "target_entropy": -6.0})
+    agent = PBRL(config, 24, 6, seed=0)
     for i in range(3):
         agent.update(_batch(i))
-    clone = PBRL(CONFIG, 24, 6, seed=99)
+    clone = PBRL(config, 24, 6, seed=99)
     clone.load_state_dict(agent.state_dict())
     for i in range(3, 6):
         agent.update(_batch(i))

@@ -15,8 +15,9 @@ minimises, summed over the members e (one loss, one backward, one optimiser)::
     beta_ood(t) = max(beta_ood_init * beta_ood_decay^t, beta_ood_min)
 
 Every ``policy_delay`` critic steps the actor maximises the ensemble minimum
-``min_e Q_e(s, pi(s))`` (a Gaussian actor: of a reparameterised sample, plus
-``entropy_weight * H(pi(.|s))``). Both target networks move by Polyak averaging after every critic
+``min_e Q_e(s, pi(s))`` (a Gaussian actor: of a reparameterised sample, plus ``alpha * H(pi(.|s))``
+with alpha fixed at ``entropy_weight`` or, with ``target_entropy`` set, tuned as in SAC by
+minimising ``log alpha * (H - target_entropy)``). Both target networks move by Polyak averaging after every critic
 step, as in the reference code.
 
 Where this differs from the thesis's reference code (DESIGN.md section 5): the bootstrap reads the
@@ -29,6 +30,7 @@ ran E backward passes through a retained graph).
 from __future__ import annotations
 
 import copy
+import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -69,7 +71,8 @@ class PBRLConfig:
     beta_ood_init: float = 3.0
     beta_ood_min: float = 0.1
     beta_ood_decay: float = 0.99995  # per critic step
-    entropy_weight: float = 0.1  # Gaussian actor only: weight of H(pi(.|s)) in the actor objective
+    entropy_weight: float = 0.1  # Gaussian actor only: alpha, the weight of H(pi(.|s)) (initial value if tuned)
+    target_entropy: float | None = None  # Gaussian actor only: tune alpha towards this entropy (SAC: -act_dim)
     log_std_min: float = -5.0  # Gaussian actor only: clamp of log sigma
     log_std_max: float = 0.0
 
@@ -87,6 +90,8 @@ class PBRLConfig:
         require(self.policy_delay >= 1, "policy_delay", "an integer >= 1", self.policy_delay)
         for name in ("target_noise", "noise_clip", "beta_in", "ood_noise", "beta_ood_min", "entropy_weight"):
             require(getattr(self, name) >= 0, name, "a non-negative number", getattr(self, name))
+        require(self.target_entropy is None or self.entropy_weight > 0, "entropy_weight",
+                "a positive initial alpha when target_entropy is set", self.entropy_weight)
         require(self.ood_actions >= 0, "ood_actions", "a non-negative integer", self.ood_actions)
         require(self.beta_ood_init >= self.beta_ood_min, "beta_ood_init",
                 f"a value >= beta_ood_min={self.beta_ood_min}", self.beta_ood_init)
@@ -217,21 +222,57 @@ class PessimisticCritic:
         self.optimizer.load_state_dict(state["optimizer"])
 
 
+class EntropyTemperature:
+    """alpha of the Gaussian actor's objective: fixed, or tuned towards ``target_entropy`` (SAC)."""
+
+    def __init__(self, config: PBRLConfig, device: torch.device):
+        self.target = config.target_entropy
+        self.log_alpha = torch.tensor(math.log(max(config.entropy_weight, 1e-30)), device=device,
+                                      requires_grad=self.target is not None)
+        self.fixed = config.entropy_weight if self.target is None else None
+        self.optimizer = None if self.target is None else torch.optim.Adam([self.log_alpha], lr=config.learning_rate)
+
+    @property
+    def value(self) -> float:
+        return self.fixed if self.fixed is not None else float(self.log_alpha.detach().exp())
+
+    def update(self, entropy: torch.Tensor) -> None:
+        """One step on ``log alpha * (H - target)``: alpha falls while the entropy is above target."""
+        if self.optimizer is None:
+            return
+        loss = self.log_alpha * (entropy.detach().mean() - self.target)
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optimizer.step()
+
+    def state_dict(self) -> dict:
+        return {"log_alpha": self.log_alpha.detach().clone(),
+                "optimizer": None if self.optimizer is None else self.optimizer.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        with torch.no_grad():
+            self.log_alpha.copy_(state["log_alpha"])
+        if self.optimizer is not None:
+            self.optimizer.load_state_dict(state["optimizer"])
+
+
 def actor_objective(actor: nn.Module, obs: torch.Tensor, actor_input: torch.Tensor, critic: PessimisticCritic,
-                    entropy_weight: float, generator: torch.Generator) -> tuple[torch.Tensor, dict[str, float]]:
-    """-mean_B [min_e Q_e(s, pi(s))] (Gaussian: of a reparameterised sample, minus entropy_weight * H).
+                    alpha: float, generator: torch.Generator
+                    ) -> tuple[torch.Tensor, dict[str, float], torch.Tensor | None]:
+    """-mean_B [min_e Q_e(s, pi(s))] (Gaussian: of a reparameterised sample, minus alpha * H).
 
     ``actor_input`` is what the actor reads (the state, or the state with a task id); ``obs`` what
-    the critic reads.
+    the critic reads. Returns the loss, its metrics and the entropies ``[B]`` (None if deterministic).
     """
     if isinstance(actor, GaussianActor):
         actions, entropy = actor.rsample(actor_input, generator)
         q = critic.min_q(obs, actions)
-        loss = -(q + entropy_weight * entropy).mean()
-        return loss, {"actor_loss": loss.item(), "actor_q": q.mean().item(), "entropy": entropy.mean().item()}
+        loss = -(q + alpha * entropy).mean()
+        return loss, {"actor_loss": loss.item(), "actor_q": q.mean().item(), "entropy": entropy.mean().item(),
+                      "alpha": alpha}, entropy
     q = critic.min_q(obs, actor(actor_input))
     loss = -q.mean()
-    return loss, {"actor_loss": loss.item(), "actor_q": q.mean().item()}
+    return loss, {"actor_loss": loss.item(), "actor_q": q.mean().item()}, None
 
 
 class PBRL:
@@ -246,6 +287,7 @@ class PBRL:
         self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=config.learning_rate)
         self.critic = PessimisticCritic(config, obs_dim, act_dim, self.device)
+        self.temperature = EntropyTemperature(config, self.device)
         self.generator = torch.Generator(self.device).manual_seed(seed)
         self.updates = 0
 
@@ -262,11 +304,13 @@ class PBRL:
         metrics["beta_ood"] = beta
         self.updates += 1
         if self.updates % self.config.policy_delay == 0:
-            loss, actor_metrics = actor_objective(self.actor, batch.observations, batch.observations, self.critic,
-                                                  self.config.entropy_weight, self.generator)
+            loss, actor_metrics, entropy = actor_objective(self.actor, batch.observations, batch.observations,
+                                                           self.critic, self.temperature.value, self.generator)
             self.actor_optimizer.zero_grad(set_to_none=True)
             loss.backward()
             self.actor_optimizer.step()
+            if entropy is not None:
+                self.temperature.update(entropy)
             metrics |= actor_metrics
         soft_update(self.actor_target, self.actor, self.config.actor_tau)
         self.critic.soft_update()
@@ -282,12 +326,14 @@ class PBRL:
         """Everything a resumed run needs to continue bit for bit (a copy, not views of live tensors)."""
         return copy.deepcopy({"actor": self.actor.state_dict(), "actor_target": self.actor_target.state_dict(),
                 "actor_optimizer": self.actor_optimizer.state_dict(), "critic": self.critic.state_dict(),
-                "generator": self.generator.get_state(), "updates": self.updates})
+                "temperature": self.temperature.state_dict(), "generator": self.generator.get_state(),
+                "updates": self.updates})
 
     def load_state_dict(self, state: dict) -> None:
         self.actor.load_state_dict(state["actor"])
         self.actor_target.load_state_dict(state["actor_target"])
         self.actor_optimizer.load_state_dict(state["actor_optimizer"])
         self.critic.load_state_dict(state["critic"])
+        self.temperature.load_state_dict(state["temperature"])
         self.generator.set_state(state["generator"])
         self.updates = state["updates"]

@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from mop_core.agents.pbrl import (
+    EntropyTemperature,
     PBRLConfig,
     PessimisticCritic,
     actor_objective,
@@ -41,6 +42,7 @@ class MultiTaskPBRL:
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=config.learning_rate)
         self.critics = [PessimisticCritic(config, obs_dim, act_dim, self.device) for _ in self.tasks]
         self.critic_updates = [0] * len(self.tasks)
+        self.temperature = EntropyTemperature(config, self.device)
         self.generator = torch.Generator(self.device).manual_seed(seed)
         self.updates = 0
 
@@ -66,11 +68,13 @@ class MultiTaskPBRL:
         self.updates += 1
         if self.critic_updates[task] % self.config.policy_delay == 0:
             actor_input = with_task_id(batch.observations, task, len(self.tasks))
-            loss, actor_metrics = actor_objective(self.actor, batch.observations, actor_input, critic,
-                                                  self.config.entropy_weight, self.generator)
+            loss, actor_metrics, entropy = actor_objective(self.actor, batch.observations, actor_input, critic,
+                                                           self.temperature.value, self.generator)
             self.actor_optimizer.zero_grad(set_to_none=True)
             loss.backward()
             self.actor_optimizer.step()
+            if entropy is not None:
+                self.temperature.update(entropy)
             metrics |= actor_metrics
         soft_update(self.actor_target, self.actor, self.config.actor_tau)
         critic.soft_update()
@@ -87,6 +91,7 @@ class MultiTaskPBRL:
                               "actor_optimizer": self.actor_optimizer.state_dict(),
                               "critics": [c.state_dict() for c in self.critics],
                               "critic_updates": list(self.critic_updates), "generator": self.generator.get_state(),
+                              "temperature": self.temperature.state_dict(),
                               "updates": self.updates})
 
     def load_state_dict(self, state: dict) -> None:
@@ -96,5 +101,6 @@ class MultiTaskPBRL:
         for critic, critic_state in zip(self.critics, state["critics"], strict=True):
             critic.load_state_dict(critic_state)
         self.critic_updates = list(state["critic_updates"])
+        self.temperature.load_state_dict(state["temperature"])
         self.generator.set_state(state["generator"])
         self.updates = state["updates"]
