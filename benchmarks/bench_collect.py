@@ -10,8 +10,6 @@ few timed repeats after a warm-up. Run: ``python benchmarks/bench_collect.py [--
 from __future__ import annotations
 
 import argparse
-import statistics
-import time
 from pathlib import Path
 
 import mujoco
@@ -19,6 +17,7 @@ import numpy as np
 import torch
 import yaml
 from mujoco import rollout
+from timing import rate
 
 from mop_core.agents.td3 import TD3, TD3Config
 from mop_core.config import from_mapping
@@ -29,17 +28,6 @@ from mop_core.relabel import relabel_rewards
 from mop_core.runtime import set_threads
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def rate(fn, units: float, repeats: int = 3) -> float:
-    """Median units/s over ``repeats`` timed calls of ``fn`` (after one warm-up call)."""
-    fn()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return units / statistics.median(times)
 
 
 def env_steps_per_second(steps: int = 2000) -> float:

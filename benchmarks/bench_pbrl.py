@@ -16,12 +16,11 @@ from __future__ import annotations
 
 import argparse
 import copy
-import statistics
-import time
 from pathlib import Path
 
 import torch
 import yaml
+from timing import rate
 from torch import nn
 
 from mop_core.agents.pbrl import PBRL, PBRLConfig, beta_ood, noisy
@@ -31,17 +30,6 @@ from mop_core.nn import soft_update
 from mop_core.runtime import set_threads
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def rate(fn, units: float, repeats: int = 3) -> float:
-    """Median units/s over ``repeats`` timed calls of ``fn`` (after one warm-up call)."""
-    fn()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return units / statistics.median(times)
 
 
 def pbrl_config(profile: Path) -> PBRLConfig:

@@ -27,3 +27,10 @@ def training_threads(params: dict[str, Any]) -> int:
     threads = section(params, SECTION).get("threads", 1)
     require(isinstance(threads, int) and threads >= 1, f"{SECTION}.threads", "a positive integer", threads)
     return threads
+
+
+def check_level_and_seed(study: StudyConfig, level: str, seed: int) -> None:
+    """The matrix arguments every PBRL stage takes, checked against the study before any compute."""
+    if level not in study.levels:
+        raise ConfigError(f"--level: expected one of study.levels {list(study.levels)}, got {level!r}")
+    require(seed >= 0, "--seed", "a non-negative integer", seed)

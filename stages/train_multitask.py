@@ -21,9 +21,9 @@ from common import (
     study_config,
     teacher_paths,
 )
-from teacher_config import teacher_config, training_threads
+from teacher_config import check_level_and_seed, teacher_config, training_threads
 
-from mop_core.config import ConfigError, require
+from mop_core.config import ConfigError
 from mop_core.runtime import progress_enabled, resolve_device, set_threads
 from mop_core.teachers import DataSource, train_multitask
 
@@ -36,9 +36,7 @@ def main() -> None:
 
     params = load_params()
     study = study_config(params)
-    if args.level not in study.levels:
-        raise ConfigError(f"--level: expected one of study.levels {list(study.levels)}, got {args.level!r}")
-    require(args.seed >= 0, "--seed", "a non-negative integer", args.seed)
+    check_level_and_seed(study, args.level, args.seed)
     if len(study.tasks) < 2:
         raise ConfigError(f"study.tasks: the multi-task baseline needs at least two tasks, got {list(study.tasks)}")
     config = teacher_config(params, study)

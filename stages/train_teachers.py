@@ -22,10 +22,10 @@ from common import (
     teacher_name,
     teacher_paths,
 )
-from teacher_config import teacher_config, training_threads
+from teacher_config import check_level_and_seed, teacher_config, training_threads
 
 from mop_core.agents.pbrl import ACTOR_TYPES
-from mop_core.config import ConfigError, require
+from mop_core.config import ConfigError
 from mop_core.runtime import progress_enabled, resolve_device, set_threads
 from mop_core.teachers import DataSource, train_teacher
 
@@ -42,9 +42,7 @@ def main() -> None:
     study = study_config(params)
     if args.task not in study.tasks:
         raise ConfigError(f"--task: expected one of study.tasks {list(study.tasks)}, got {args.task!r}")
-    if args.level not in study.levels:
-        raise ConfigError(f"--level: expected one of study.levels {list(study.levels)}, got {args.level!r}")
-    require(args.seed >= 0, "--seed", "a non-negative integer", args.seed)
+    check_level_and_seed(study, args.level, args.seed)
     config = teacher_config(params, study, args.actor)
     threads = training_threads(params)
     device = resolve_device(study.device, "study.device")

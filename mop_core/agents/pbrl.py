@@ -275,6 +275,19 @@ def actor_objective(actor: nn.Module, obs: torch.Tensor, actor_input: torch.Tens
     return loss, {"actor_loss": loss.item(), "actor_q": q.mean().item()}, None
 
 
+def actor_step(actor: nn.Module, optimizer: torch.optim.Optimizer, temperature: EntropyTemperature,
+               obs: torch.Tensor, actor_input: torch.Tensor, critic: PessimisticCritic,
+               generator: torch.Generator) -> dict[str, float]:
+    """One optimiser step on :func:`actor_objective` (and, for a Gaussian actor, on alpha)."""
+    loss, metrics, entropy = actor_objective(actor, obs, actor_input, critic, temperature.value, generator)
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    optimizer.step()
+    if entropy is not None:
+        temperature.update(entropy)
+    return metrics
+
+
 class PBRL:
     """A single-task PBRL learner: ``update(batch)`` is one gradient step of the module docstring."""
 
@@ -304,14 +317,8 @@ class PBRL:
         metrics["beta_ood"] = beta
         self.updates += 1
         if self.updates % self.config.policy_delay == 0:
-            loss, actor_metrics, entropy = actor_objective(self.actor, batch.observations, batch.observations,
-                                                           self.critic, self.temperature.value, self.generator)
-            self.actor_optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            self.actor_optimizer.step()
-            if entropy is not None:
-                self.temperature.update(entropy)
-            metrics |= actor_metrics
+            metrics |= actor_step(self.actor, self.actor_optimizer, self.temperature, batch.observations,
+                                  batch.observations, self.critic, self.generator)
         soft_update(self.actor_target, self.actor, self.config.actor_tau)
         self.critic.soft_update()
         return metrics

@@ -20,7 +20,7 @@ from mop_core.agents.pbrl import (
     EntropyTemperature,
     PBRLConfig,
     PessimisticCritic,
-    actor_objective,
+    actor_step,
     beta_ood,
     make_actor,
     policy_actions,
@@ -68,14 +68,8 @@ class MultiTaskPBRL:
         self.updates += 1
         if self.critic_updates[task] % self.config.policy_delay == 0:
             actor_input = with_task_id(batch.observations, task, len(self.tasks))
-            loss, actor_metrics, entropy = actor_objective(self.actor, batch.observations, actor_input, critic,
-                                                           self.temperature.value, self.generator)
-            self.actor_optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            self.actor_optimizer.step()
-            if entropy is not None:
-                self.temperature.update(entropy)
-            metrics |= actor_metrics
+            metrics |= actor_step(self.actor, self.actor_optimizer, self.temperature, batch.observations,
+                                  actor_input, critic, self.generator)
         soft_update(self.actor_target, self.actor, self.config.actor_tau)
         critic.soft_update()
         return metrics
