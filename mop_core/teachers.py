@@ -10,48 +10,34 @@ weights as an uninterrupted one.
 
 from __future__ import annotations
 
-import hashlib
-import json
-import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from mop_core.agents.pbrl import PBRL, PBRLConfig, make_actor
 from mop_core.agents.pbrl_multitask import MultiTaskPBRL
 from mop_core.artifacts import load_checkpoint, package_versions, save_checkpoint, state_sha256, write_curve
-from mop_core.config import require, to_dict
+from mop_core.config import to_dict
 from mop_core.data import TransitionTensors, read_dataset, read_relabel, write_json
 from mop_core.envs import ACT_DIM, OBS_DIM
-from mop_core.nn import EnsembleCritic, with_task_id
+from mop_core.nn import EnsembleCritic
 from mop_core.rollout import episode_returns, trajectory_returns
 from mop_core.runtime import derive_seeds
 from mop_core.tasks import check_task_list
+from mop_core.training import (
+    RunPaths,
+    TrainSchedule,
+    returns_summary,
+    run_fingerprint,
+    torch_policy,
+    train_loop,
+)
 
 TEACHER_KIND = "pbrl_teacher"
 MULTITASK_KIND = "pbrl_multitask"
-RESUME_KIND = "pbrl_resume"
-
-
-@dataclass(frozen=True)
-class TrainSchedule:
-    """How long a PBRL run trains and how often it evaluates and checkpoints (gradient steps)."""
-
-    steps: int  # gradient steps (the multi-task baseline: per task)
-    eval_every: int = 10000  # steps between learning-curve evaluations
-    eval_episodes: int = 5  # episodes per learning-curve evaluation (same seeds every time)
-    final_eval_episodes: int = 10  # episodes of the final evaluation (seeds not used for the curve)
-    checkpoint_every: int = 10000  # steps between resume checkpoints
-    rollout_envs: int = 10  # walkers stepped together in evaluations
-
-    def __post_init__(self) -> None:
-        for name in ("steps", "eval_every", "eval_episodes", "final_eval_episodes", "checkpoint_every",
-                     "rollout_envs"):
-            require(getattr(self, name) > 0, name, "a positive integer", getattr(self, name))
 
 
 @dataclass(frozen=True)
@@ -61,16 +47,6 @@ class TeacherConfig:
     pbrl: PBRLConfig
     schedule: TrainSchedule
     episode_length: int = 1000
-
-
-@dataclass(frozen=True)
-class RunPaths:
-    """Where a run writes: the final checkpoint, its metrics, its curve, and the resume file."""
-
-    checkpoint: Path
-    metrics: Path
-    curve: Path
-    resume: Path
 
 
 @dataclass(frozen=True)
@@ -102,80 +78,6 @@ def run_seeds(study_seed: int, name: Sequence[str], seed: int) -> dict[str, int]
     return derive_seeds([study_seed, *name, seed], ("agent", "sampler", "eval", "final_eval"))
 
 
-def _fingerprint(payload: dict) -> str:
-    return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()
-
-
-def _try_resume(path: Path, fingerprint: str) -> dict | None:
-    """The resume state at ``path`` if it belongs to this exact run, else None (a clean restart)."""
-    if not path.is_file():
-        return None
-    try:
-        state = load_checkpoint(path, RESUME_KIND)
-    except Exception as err:  # unreadable or foreign: restart rather than fail
-        print(f"warning: ignoring resume file {path}: {err}")
-        return None
-    if state.get("fingerprint") != fingerprint:
-        print(f"warning: {path} belongs to another configuration or dataset; restarting from step 0")
-        return None
-    return state
-
-
-def train_loop(agent, update: Callable[[], dict], evaluate: Callable[[list[int]], dict[str, float]],
-               schedule: TrainSchedule, seeds: dict[str, int], sampler: torch.Generator, paths: RunPaths,
-               fingerprint: str, desc: str, progress: bool) -> tuple[list[dict], float, int]:
-    """Run ``update`` to ``schedule.steps`` with periodic evaluation and resume checkpoints.
-
-    Returns the learning curve rows, the training seconds and the step it resumed from (0 if none).
-    """
-    curve: list[dict] = []
-    seconds_before = 0.0
-    resumed_from = 0
-    state = _try_resume(paths.resume, fingerprint)
-    if state is not None:
-        agent.load_state_dict(state["agent"])
-        sampler.set_state(state["sampler"])
-        curve, seconds_before, resumed_from = state["curve"], state["seconds"], state["step"]
-    eval_seeds = [seeds["eval"] + i for i in range(schedule.eval_episodes)]
-    started = time.perf_counter()
-    losses: dict[str, list[float]] = {}
-    bar = tqdm(total=schedule.steps, initial=resumed_from, desc=desc, disable=not progress, mininterval=2.0,
-               unit="upd")
-    for step in range(resumed_from + 1, schedule.steps + 1):
-        for key, value in update().items():
-            losses.setdefault(key, []).append(value)
-        bar.update(1)
-        if step % schedule.eval_every == 0 or step == schedule.steps:
-            row = {"step": step, **evaluate(eval_seeds)}
-            row |= {key: float(np.mean(values)) for key, values in sorted(losses.items())}
-            row["seconds"] = round(seconds_before + time.perf_counter() - started, 1)
-            curve.append(row)
-            losses = {}
-            bar.set_postfix(ret=f"{row['return_mean']:.0f}")
-        if step % schedule.checkpoint_every == 0 and step < schedule.steps:
-            save_checkpoint(paths.resume, {"kind": RESUME_KIND, "fingerprint": fingerprint, "step": step,
-                                           "agent": agent.state_dict(), "sampler": sampler.get_state(),
-                                           "curve": curve,
-                                           "seconds": seconds_before + time.perf_counter() - started})
-    bar.close()
-    return curve, seconds_before + time.perf_counter() - started, resumed_from
-
-
-def _torch_policy(actor: torch.nn.Module, device: torch.device, task_index: int | None = None,
-                  num_tasks: int = 0) -> Callable[[np.ndarray], np.ndarray]:
-    @torch.no_grad()
-    def policy(obs: np.ndarray) -> np.ndarray:
-        x = torch.as_tensor(np.asarray(obs, dtype=np.float32), device=device)
-        if task_index is not None:
-            x = with_task_id(x, task_index, num_tasks)
-        return actor(x).cpu().numpy().astype(np.float64)
-    return policy
-
-
-def _returns_summary(returns: np.ndarray) -> dict[str, float]:
-    return {"return_mean": float(returns.mean()), "return_std": float(returns.std())}
-
-
 def train_teacher(task: str, source: DataSource, config: TeacherConfig, seed: int, study_seed: int,
                   paths: RunPaths, device: torch.device | str = "cpu", progress: bool = False) -> dict:
     """Train one PBRL teacher for ``task`` on ``source`` (its own dataset: D_{i->i}); write its files.
@@ -190,13 +92,13 @@ def train_teacher(task: str, source: DataSource, config: TeacherConfig, seed: in
     agent = PBRL(config.pbrl, OBS_DIM, ACT_DIM, seeds["agent"], device)
     sampler = torch.Generator().manual_seed(seeds["sampler"])
     batch_size = config.pbrl.batch_size
-    policy = _torch_policy(agent.actor, device)
+    policy = torch_policy(agent.actor, device)
     sched = config.schedule
 
     def evaluate(eval_seeds: list[int]) -> dict[str, float]:
-        return _returns_summary(episode_returns(policy, task, eval_seeds, config.episode_length, sched.rollout_envs))
+        return returns_summary(episode_returns(policy, task, eval_seeds, config.episode_length, sched.rollout_envs))
 
-    fingerprint = _fingerprint({"task": task, "config": to_dict(config), "seed": seed, "study_seed": study_seed,
+    fingerprint = run_fingerprint({"task": task, "config": to_dict(config), "seed": seed, "study_seed": study_seed,
                                 "data": summary["content_sha256"], "reward_task": source.reward_task})
     curve, seconds, resumed_from = train_loop(
         agent, lambda: agent.update(data.sample(batch_size, sampler)), evaluate, sched, seeds, sampler, paths,
@@ -244,7 +146,7 @@ def train_multitask(tasks: Sequence[str], sources: Sequence[DataSource], config:
     per_task = TrainSchedule(**{**to_dict(sched), "steps": sched.steps * len(tasks),
                                 "eval_every": sched.eval_every * len(tasks),
                                 "checkpoint_every": sched.checkpoint_every * len(tasks)})
-    policies = [_torch_policy(agent.actor, device, i, len(tasks)) for i in range(len(tasks))]
+    policies = [torch_policy(agent.actor, device, i, len(tasks)) for i in range(len(tasks))]
 
     def update() -> dict:
         task_index = agent.next_task
@@ -254,13 +156,13 @@ def train_multitask(tasks: Sequence[str], sources: Sequence[DataSource], config:
     def evaluate(eval_seeds: list[int]) -> dict[str, float]:
         row = {}
         for i, task in enumerate(tasks):
-            stats = _returns_summary(episode_returns(policies[i], task, eval_seeds, config.episode_length,
+            stats = returns_summary(episode_returns(policies[i], task, eval_seeds, config.episode_length,
                                                      sched.rollout_envs))
             row |= {f"{key}_{task}": value for key, value in stats.items()}
         row["return_mean"] = float(np.mean([row[f"return_mean_{task}"] for task in tasks]))
         return row
 
-    fingerprint = _fingerprint({"tasks": tasks, "config": to_dict(config), "seed": seed, "study_seed": study_seed,
+    fingerprint = run_fingerprint({"tasks": tasks, "config": to_dict(config), "seed": seed, "study_seed": study_seed,
                                 "data": [s["content_sha256"] for _, s in loaded]})
     curve, seconds, resumed_from = train_loop(agent, update, evaluate, per_task, seeds, sampler, paths, fingerprint,
                                               f"multitask {level}-{seed}", progress)

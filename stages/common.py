@@ -83,7 +83,7 @@ def teacher_name(task: str, level: str, actor: str, seed: int) -> str:
 def teacher_paths(name: str, family: str = "teachers"):
     """Final checkpoint (DVC output), metrics and curve (results/), resume file (not an output:
     ``dvc repro`` deletes outputs before a stage runs, and the resume file must survive that)."""
-    from mop_core.teachers import RunPaths
+    from mop_core.training import RunPaths
 
     return RunPaths(checkpoint=DATA / family / f"{name}.pt", metrics=RESULTS / family / "metrics" / f"{name}.json",
                     curve=RESULTS / family / "curves" / f"{name}.tsv", resume=DATA / "resume" / f"{family}-{name}.pt")

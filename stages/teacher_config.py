@@ -9,7 +9,8 @@ from common import StudyConfig, section
 
 from mop_core.agents.pbrl import PBRLConfig
 from mop_core.config import ConfigError, from_mapping, require
-from mop_core.teachers import TeacherConfig, TrainSchedule
+from mop_core.teachers import TeacherConfig
+from mop_core.training import TrainSchedule
 
 SECTION = "train_teachers"
 

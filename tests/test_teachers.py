@@ -13,14 +13,13 @@ from mop_core.agents.pbrl import PBRLConfig, PessimisticCritic
 from mop_core.relabel import RelabelConfig, relabel_dataset
 from mop_core.teachers import (
     DataSource,
-    RunPaths,
     TeacherConfig,
-    TrainSchedule,
     load_source,
     load_teacher,
     train_multitask,
     train_teacher,
 )
+from mop_core.training import RunPaths, TrainSchedule
 
 PBRL_TINY = PBRLConfig(hidden_sizes=(16, 16), ensemble_size=3, batch_size=16, ood_actions=1, learning_rate=1e-3)
 SCHEDULE = TrainSchedule(steps=40, eval_every=20, eval_episodes=2, final_eval_episodes=2, checkpoint_every=10,
@@ -105,7 +104,7 @@ def test_resume_file_of_another_config_or_a_broken_one_restarts_cleanly(sources,
     # a resume file left by a different configuration is not reused
     other = _config(schedule=TrainSchedule(**{**SCHEDULE.__dict__, "steps": 60}))
     from mop_core.artifacts import save_checkpoint
-    save_checkpoint(paths.resume, {"kind": "pbrl_resume", "fingerprint": "something else", "step": 30})
+    save_checkpoint(paths.resume, {"kind": "training_resume", "fingerprint": "something else", "step": 30})
     metrics = train_teacher("stand", sources["stand"], other, 0, 0, paths)
     assert metrics["resumed_from_step"] == 0 and "restarting from step 0" in capsys.readouterr().out
 

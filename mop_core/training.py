@@ -1,0 +1,129 @@
+"""The training loop shared by every learner of the study (teachers, baseline, students).
+
+``train_loop`` runs a learner's update to a fixed number of steps, evaluates it online every
+``eval_every`` steps (the learning curve) and saves a resume checkpoint every ``checkpoint_every``
+steps. A rerun whose resume file has the same fingerprint (configuration, seeds, data hashes)
+continues from it; any other resume file is ignored with a warning and the run restarts at step 0.
+Everything random draws from generators whose state is in the resume checkpoint, so a resumed run
+ends with the same weights as an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from mop_core.artifacts import load_checkpoint, save_checkpoint
+from mop_core.config import require
+from mop_core.nn import with_task_id
+
+RESUME_KIND = "training_resume"
+
+
+@dataclass(frozen=True)
+class TrainSchedule:
+    """How long a PBRL run trains and how often it evaluates and checkpoints (gradient steps)."""
+
+    steps: int  # gradient steps (the multi-task baseline: per task)
+    eval_every: int = 10000  # steps between learning-curve evaluations
+    eval_episodes: int = 5  # episodes per learning-curve evaluation (same seeds every time)
+    final_eval_episodes: int = 10  # episodes of the final evaluation (seeds not used for the curve)
+    checkpoint_every: int = 10000  # steps between resume checkpoints
+    rollout_envs: int = 10  # walkers stepped together in evaluations
+
+    def __post_init__(self) -> None:
+        for name in ("steps", "eval_every", "eval_episodes", "final_eval_episodes", "checkpoint_every",
+                     "rollout_envs"):
+            require(getattr(self, name) > 0, name, "a positive integer", getattr(self, name))
+
+
+@dataclass(frozen=True)
+class RunPaths:
+    """Where a run writes: the final checkpoint, its metrics, its curve, and the resume file."""
+
+    checkpoint: Path
+    metrics: Path
+    curve: Path
+    resume: Path
+
+
+def run_fingerprint(payload: dict) -> str:
+    return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def try_resume(path: Path, fingerprint: str) -> dict | None:
+    """The resume state at ``path`` if it belongs to this exact run, else None (a clean restart)."""
+    if not path.is_file():
+        return None
+    try:
+        state = load_checkpoint(path, RESUME_KIND)
+    except Exception as err:  # unreadable or foreign: restart rather than fail
+        print(f"warning: ignoring resume file {path}: {err}")
+        return None
+    if state.get("fingerprint") != fingerprint:
+        print(f"warning: {path} belongs to another configuration or dataset; restarting from step 0")
+        return None
+    return state
+
+
+def train_loop(agent, update: Callable[[], dict], evaluate: Callable[[list[int]], dict[str, float]],
+               schedule: TrainSchedule, seeds: dict[str, int], sampler: torch.Generator, paths: RunPaths,
+               fingerprint: str, desc: str, progress: bool) -> tuple[list[dict], float, int]:
+    """Run ``update`` to ``schedule.steps`` with periodic evaluation and resume checkpoints.
+
+    Returns the learning curve rows, the training seconds and the step it resumed from (0 if none).
+    """
+    curve: list[dict] = []
+    seconds_before = 0.0
+    resumed_from = 0
+    state = try_resume(paths.resume, fingerprint)
+    if state is not None:
+        agent.load_state_dict(state["agent"])
+        sampler.set_state(state["sampler"])
+        curve, seconds_before, resumed_from = state["curve"], state["seconds"], state["step"]
+    eval_seeds = [seeds["eval"] + i for i in range(schedule.eval_episodes)]
+    started = time.perf_counter()
+    losses: dict[str, list[float]] = {}
+    bar = tqdm(total=schedule.steps, initial=resumed_from, desc=desc, disable=not progress, mininterval=2.0,
+               unit="upd")
+    for step in range(resumed_from + 1, schedule.steps + 1):
+        for key, value in update().items():
+            losses.setdefault(key, []).append(value)
+        bar.update(1)
+        if step % schedule.eval_every == 0 or step == schedule.steps:
+            row = {"step": step, **evaluate(eval_seeds)}
+            row |= {key: float(np.mean(values)) for key, values in sorted(losses.items())}
+            row["seconds"] = round(seconds_before + time.perf_counter() - started, 1)
+            curve.append(row)
+            losses = {}
+            bar.set_postfix(ret=f"{row['return_mean']:.0f}")
+        if step % schedule.checkpoint_every == 0 and step < schedule.steps:
+            save_checkpoint(paths.resume, {"kind": RESUME_KIND, "fingerprint": fingerprint, "step": step,
+                                           "agent": agent.state_dict(), "sampler": sampler.get_state(),
+                                           "curve": curve,
+                                           "seconds": seconds_before + time.perf_counter() - started})
+    bar.close()
+    return curve, seconds_before + time.perf_counter() - started, resumed_from
+
+
+def torch_policy(actor: torch.nn.Module, device: torch.device, task_index: int | None = None,
+                  num_tasks: int = 0) -> Callable[[np.ndarray], np.ndarray]:
+    @torch.no_grad()
+    def policy(obs: np.ndarray) -> np.ndarray:
+        x = torch.as_tensor(np.asarray(obs, dtype=np.float32), device=device)
+        if task_index is not None:
+            x = with_task_id(x, task_index, num_tasks)
+        return actor(x).cpu().numpy().astype(np.float64)
+    return policy
+
+
+def returns_summary(returns: np.ndarray) -> dict[str, float]:
+    return {"return_mean": float(returns.mean()), "return_std": float(returns.std())}
