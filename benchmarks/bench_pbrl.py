@@ -4,7 +4,7 @@ Prints, at the quick (params.yaml) and thesis (profiles/thesis.yaml) sizes:
 - updates/s of our update (one vectorised ensemble module ``[E, in, out]``, one forward over the
   in-distribution and OOD rows, one loss, one backward, one optimiser) and of the reference-style
   update (a Python list of E critic modules with E optimisers, separate forwards for the
-  in-distribution, target and each OOD set, E backward passes through a retained graph), same
+  in-distribution, target and each OOD set, E backward passes, one per critic), same
   maths, same sizes; and the ratio;
 - the achieved GFLOP/s of our update (matmul FLOPs counted analytically) next to the GFLOP/s of
   one large float32 matrix product on the same threads (the machine's practical ceiling).
@@ -77,17 +77,21 @@ class LoopPBRL:
             a_n = noisy(self.actor(b.next_observations).repeat_interleave(n, 0), c.ood_noise, c.noise_clip, self.g)
             next_q = self._q(self.targets, b.next_observations, next_a)
             y = b.rewards + c.gamma * (next_q - c.beta_in * next_q.std(0))
-        q = self._q(self.critics, b.observations, b.actions)
-        q_s = self._q(self.critics, b.observations.repeat_interleave(n, 0), a_s)
-        q_n = self._q(self.critics, b.next_observations.repeat_interleave(n, 0), a_n)
+        # one graph per critic (a stacked tensor would route every backward through all critics)
+        q = [cr(torch.cat([b.observations, b.actions], -1)).squeeze(-1) for cr in self.critics]
+        obs_s, obs_n = b.observations.repeat_interleave(n, 0), b.next_observations.repeat_interleave(n, 0)
+        q_s = [cr(torch.cat([obs_s, a_s], -1)).squeeze(-1) for cr in self.critics]
+        q_n = [cr(torch.cat([obs_n, a_n], -1)).squeeze(-1) for cr in self.critics]
         beta = beta_ood(self.updates, c)
-        y_s = (q_s - beta * q_s.std(0)).clamp(min=0).detach()
-        y_n = (q_n - beta * q_n.std(0)).clamp(min=0).detach()
+        with torch.no_grad():
+            qs, qn = torch.stack(q_s), torch.stack(q_n)
+            y_s = (qs - beta * qs.std(0)).clamp(min=0)
+            y_n = (qn - beta * qn.std(0)).clamp(min=0)
         for e in range(c.ensemble_size):
             q_ood, y_ood = torch.cat([q_s[e], q_n[e]]), torch.cat([y_s[e], y_n[e]])
             loss = ((q[e] - y[e]) ** 2).mean() + ((q_ood - y_ood) ** 2).mean()
             self.critic_opts[e].zero_grad()
-            loss.backward(retain_graph=e < c.ensemble_size - 1)
+            loss.backward()
             self.critic_opts[e].step()
         self.updates += 1
         if self.updates % c.policy_delay == 0:

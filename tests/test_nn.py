@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 import torch
 from torch import nn
 
@@ -54,3 +55,21 @@ def test_critic_broadcasts_one_batch_to_all_members():
     q = critic(torch.randn(9, 24), torch.randn(9, 6))
     assert q.shape == (4, 9)
     assert not torch.allclose(q[0], q[1])  # members are initialised independently
+
+
+@pytest.mark.parametrize("layer_norm", [False, True])
+def test_member_by_member_path_equals_the_batched_path_in_outputs_and_gradients(layer_norm):
+    torch.manual_seed(0)
+    critic = EnsembleCritic(24, 6, [16, 16], ensemble_size=4, layer_norm=layer_norm)
+    obs, act = torch.randn(50, 24), torch.randn(50, 6)
+    critic.member_loop_rows = 10**9
+    batched = critic(obs, act)
+    batched.square().sum().backward()
+    grads = {n: p.grad.clone() for n, p in critic.named_parameters()}
+    critic.zero_grad()
+    critic.member_loop_rows = 1
+    looped = critic(obs, act)
+    looped.square().sum().backward()
+    torch.testing.assert_close(looped, batched)
+    for n, p in critic.named_parameters():
+        torch.testing.assert_close(p.grad, grads[n], msg=n)
