@@ -10,9 +10,9 @@ weights as an uninterrupted one.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import torch
@@ -20,7 +20,7 @@ import torch
 from mop_core.agents.pbrl import PBRL, PBRLConfig, make_actor
 from mop_core.agents.pbrl_multitask import MultiTaskPBRL
 from mop_core.artifacts import load_checkpoint, package_versions, save_checkpoint, state_sha256, write_curve
-from mop_core.config import to_dict
+from mop_core.config import from_mapping, to_dict
 from mop_core.data import TransitionTensors, read_dataset, read_relabel, write_json
 from mop_core.envs import ACT_DIM, OBS_DIM
 from mop_core.nn import EnsembleCritic
@@ -197,6 +197,8 @@ class Teacher:
     config: PBRLConfig
     actor: torch.nn.Module
     critic: EnsembleCritic
+    actor_sha256: str = ""
+    metrics: dict = field(default_factory=dict)  # the training run's metrics (final return, dataset return)
 
     @torch.no_grad()
     def act(self, observations: np.ndarray) -> np.ndarray:
@@ -206,8 +208,6 @@ class Teacher:
 
 def load_teacher(path: str | Path) -> Teacher:
     """Rebuild a teacher from a ``train_teacher`` checkpoint (no params.yaml needed)."""
-    from mop_core.config import from_mapping
-
     payload = load_checkpoint(path, TEACHER_KIND)
     config = from_mapping(PBRLConfig, payload["pbrl_config"], "pbrl_config")
     actor = make_actor(config, payload["obs_dim"], payload["act_dim"])
@@ -216,4 +216,29 @@ def load_teacher(path: str | Path) -> Teacher:
                             config.layer_norm)
     critic.load_state_dict(payload["critic"])
     return Teacher(payload["task"], payload["level"], payload["seed"], config, actor.eval().requires_grad_(False),
-                   critic.eval().requires_grad_(False))
+                   critic.eval().requires_grad_(False), payload["actor_sha256"], dict(payload["metrics"]))
+
+
+@dataclass
+class MultiTaskPolicy:
+    """The naive multi-task baseline's shared actor rebuilt from its checkpoint."""
+
+    tasks: list[str]
+    level: str
+    seed: int
+    actor: torch.nn.Module
+
+    def policy(self, task: str) -> Callable[[np.ndarray], np.ndarray]:
+        if task not in self.tasks:
+            raise ValueError(f"task: expected one of the baseline's tasks {self.tasks}, got {task!r}")
+        return torch_policy(self.actor, torch.device("cpu"), self.tasks.index(task), len(self.tasks))
+
+
+def load_multitask(path: str | Path) -> MultiTaskPolicy:
+    """Rebuild the baseline's actor from a ``train_multitask`` checkpoint."""
+    payload = load_checkpoint(path, MULTITASK_KIND)
+    config = from_mapping(PBRLConfig, payload["pbrl_config"], "pbrl_config")
+    actor = make_actor(config, payload["obs_dim"] + len(payload["tasks"]), payload["act_dim"])
+    actor.load_state_dict(payload["actor"])
+    return MultiTaskPolicy(list(payload["tasks"]), payload["level"], payload["seed"],
+                           actor.eval().requires_grad_(False))

@@ -49,3 +49,32 @@ def tiny_collected(tmp_path_factory, tiny_collect_config):
     root = tmp_path_factory.mktemp("collect")
     summary = collect_task("stand", tiny_collect_config, 0, collect_paths(root, "stand"))
     return root, summary
+
+
+@pytest.fixture(scope="session")
+def tiny_teachers(tiny_collected, tmp_path_factory):
+    """Tiny teachers for two tasks from the tiny 'stand' data: stand on D_{stand->stand} (medium), walk
+    on D_{stand->walk} (expert); deterministic and Gaussian. ``{(task, actor): checkpoint}`` and the
+    dataset of each task."""
+    from mop_core.agents.pbrl import PBRLConfig
+    from mop_core.relabel import RelabelConfig, relabel_dataset
+    from mop_core.teachers import DataSource, TeacherConfig, train_teacher
+    from mop_core.training import RunPaths, TrainSchedule
+
+    root, _ = tiny_collected
+    out = tmp_path_factory.mktemp("teachers")
+    datasets = {"stand": root / "datasets" / "stand-medium.hdf5", "walk": root / "datasets" / "stand-expert.hdf5"}
+    schedule = TrainSchedule(steps=20, eval_every=20, eval_episodes=1, final_eval_episodes=2, checkpoint_every=20,
+                             rollout_envs=2)
+    checkpoints = {}
+    for task, dataset in datasets.items():
+        relabel = out / f"{task}-relabel.hdf5"
+        relabel_dataset(dataset, relabel, ["stand", "walk"], RelabelConfig(physics_check_transitions=0))
+        for actor in ("deterministic", "gaussian"):
+            config = TeacherConfig(PBRLConfig(actor=actor, hidden_sizes=(16, 16), ensemble_size=3, batch_size=16,
+                                              ood_actions=1, learning_rate=1e-3), schedule, episode_length=50)
+            run = out / f"{task}-{actor}"
+            paths = RunPaths(run / "teacher.pt", run / "metrics.json", run / "curve.tsv", run / "resume.pt")
+            train_teacher(task, DataSource(dataset, relabel, task), config, 0, 0, paths)
+            checkpoints[(task, actor)] = paths.checkpoint
+    return checkpoints, datasets

@@ -1,0 +1,119 @@
+"""The distillation learner: one gradient step on the student per call (thesis 4.2, 5.1.3).
+
+Each step draws ``batch_size`` states per task (uniformly, with replacement) from that task's
+:class:`~mop_core.distill.states.TaskStates`, runs the student once on all ``m * batch_size`` rows
+(state + one-hot task id) and minimises the chosen loss averaged over the rows, i.e.
+``1/m sum_i E_{s~D_i}[loss_i(s)]`` as in the thesis. Teacher actions and Gaussian parameters are
+read from the cache; the Q loss evaluates each task's frozen teacher critic ensemble at the
+student's actions (gradients flow through the critic into the student; the critic's weights are
+frozen).
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import torch
+
+from mop_core.config import require
+from mop_core.distill.losses import LOSSES, Q_REDUCTIONS, gaussian_kl_per_state, mse_per_state, q_per_state
+from mop_core.distill.states import STATE_SOURCES, TaskStates
+from mop_core.distill.student import Student, StudentConfig
+from mop_core.nn import EnsembleCritic
+
+
+@dataclass(frozen=True)
+class DistillConfig:
+    """What a student learns from and how (the schedule is a separate TrainSchedule)."""
+
+    loss: str = "mse"  # mse | q | kl (kl needs Gaussian teachers; its student is Gaussian too)
+    student: StudentConfig = field(default_factory=StudentConfig)
+    learning_rate: float = 1e-4
+    batch_size: int = 256  # states per task per gradient step
+    q_reduction: str = "min"  # Q loss: reduce the teacher's critic ensemble by min or mean
+    state_source: str = "offline"  # offline: the task's dataset; online: states the teacher visits
+    num_states: int = 0  # states per task; 0 = the whole offline dataset (online: must be > 0)
+
+    def __post_init__(self) -> None:
+        require(self.loss in LOSSES, "loss", f"one of {LOSSES}", self.loss)
+        require(self.q_reduction in Q_REDUCTIONS, "q_reduction", f"one of {Q_REDUCTIONS}", self.q_reduction)
+        require(self.state_source in STATE_SOURCES, "state_source", f"one of {STATE_SOURCES}", self.state_source)
+        require(self.learning_rate > 0, "learning_rate", "a positive number", self.learning_rate)
+        require(self.batch_size >= 1, "batch_size", "a positive integer", self.batch_size)
+        require(self.num_states >= 0, "num_states", "a non-negative integer (0 = the whole dataset)",
+                self.num_states)
+        require(self.state_source == "offline" or self.num_states > 0, "num_states",
+                "a positive number of states for state_source online", self.num_states)
+
+
+class Distiller:
+    """A student, its optimiser and the cached targets of every task; ``update()`` is one step."""
+
+    def __init__(self, config: DistillConfig, targets: Sequence[TaskStates], obs_dim: int, act_dim: int, seed: int,
+                 critics: Sequence[EnsembleCritic] | None = None, device: torch.device | str = "cpu"):
+        self.config, self.device, self.targets = config, torch.device(device), list(targets)
+        self.tasks = [t.task for t in self.targets]
+        if config.loss == "q" and (critics is None or len(critics) != len(self.targets)):
+            raise ValueError("critics: the Q loss needs one teacher critic ensemble per task")
+        if config.loss == "kl" and any(t.teacher_std is None for t in self.targets):
+            raise ValueError("targets: the KL loss needs Gaussian teachers (teacher_std is missing)")
+        self.critics = [c.to(self.device).requires_grad_(False) for c in critics] if config.loss == "q" else []
+        torch.manual_seed(seed)  # student initialisation
+        self.student = Student(config.student, obs_dim, act_dim, len(self.targets),
+                               gaussian=config.loss == "kl").to(self.device)
+        self.optimizer = torch.optim.Adam(self.student.parameters(), lr=config.learning_rate)
+        self.generator = torch.Generator().manual_seed(seed)
+        self.updates = 0
+
+    def _rows(self, batch_size: int) -> list[torch.Tensor]:
+        return [torch.randint(len(t), (batch_size,), generator=self.generator).to(self.device) for t in self.targets]
+
+    def loss(self, rows: list[torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
+        """The loss on the given state indices (one index tensor per task) and per-task metrics."""
+        cfg, m = self.config, len(self.targets)
+        obs = torch.cat([t.states[r] for t, r in zip(self.targets, rows)])
+        teacher_actions = torch.cat([t.teacher_actions[r] for t, r in zip(self.targets, rows)])
+        task_ids = torch.arange(m, device=self.device).repeat_interleave(torch.tensor([len(r) for r in rows],
+                                                                                       device=self.device))
+        if cfg.loss == "kl":
+            mu, std = self.student.distribution(obs, task_ids)
+            teacher_std = torch.cat([t.teacher_std[r] for t, r in zip(self.targets, rows)])
+            per_state = gaussian_kl_per_state(mu, std, teacher_actions, teacher_std)
+            actions = mu
+        else:
+            actions = self.student(obs, task_ids)
+            if cfg.loss == "mse":
+                per_state = mse_per_state(actions, teacher_actions)
+            else:
+                per_state = torch.cat([q_per_state(critic(o, a), cfg.q_reduction) for critic, o, a in
+                                       zip(self.critics, obs.split([len(r) for r in rows]),
+                                           actions.split([len(r) for r in rows]))])
+        loss = per_state.mean()
+        metrics = {"loss": loss.item()}
+        with torch.no_grad():
+            action_mse = mse_per_state(actions, teacher_actions)
+            for task, part, mse in zip(self.tasks, per_state.split([len(r) for r in rows]),
+                                       action_mse.split([len(r) for r in rows])):
+                metrics[f"loss_{task}"] = part.mean().item()
+                metrics[f"action_mse_{task}"] = mse.mean().item()
+        return loss, metrics
+
+    def update(self) -> dict[str, float]:
+        loss, metrics = self.loss(self._rows(self.config.batch_size))
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optimizer.step()
+        self.updates += 1
+        return metrics
+
+    def state_dict(self) -> dict:
+        return copy.deepcopy({"student": self.student.state_dict(), "optimizer": self.optimizer.state_dict(),
+                              "generator": self.generator.get_state(), "updates": self.updates})
+
+    def load_state_dict(self, state: dict) -> None:
+        self.student.load_state_dict(state["student"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.generator.set_state(state["generator"])
+        self.updates = state["updates"]

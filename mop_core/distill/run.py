@@ -1,0 +1,169 @@
+"""One distillation run: teachers + states -> a trained multi-task student and its files.
+
+The student for tasks (t_0, ..., t_{m-1}) learns from teacher i on task i's states (offline: the
+dataset teacher i was trained on; online: states teacher i visits). The run evaluates the student
+online on every task every ``eval_every`` steps (the learning curve), can be resumed like every
+training run (:mod:`mop_core.training`), and ends with a checkpoint (config, student weights, the
+teachers it learned from) and a metrics record (return per task next to the teacher's).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+import torch
+
+from mop_core.artifacts import load_checkpoint, package_versions, save_checkpoint, state_sha256, write_curve
+from mop_core.config import from_mapping, to_dict
+from mop_core.data import write_json
+from mop_core.distill.distiller import DistillConfig, Distiller
+from mop_core.distill.states import TaskStates, offline_states, online_states, task_states
+from mop_core.distill.student import Student
+from mop_core.envs import ACT_DIM, OBS_DIM
+from mop_core.rollout import episode_returns
+from mop_core.runtime import derive_seeds
+from mop_core.tasks import check_task_list
+from mop_core.teachers import Teacher, load_teacher
+from mop_core.training import RunPaths, TrainSchedule, returns_summary, run_fingerprint, train_loop
+
+STUDENT_KIND = "mop_student"
+
+
+@dataclass(frozen=True)
+class StudentSources:
+    """What one student learns from: per task (in task-id order) a teacher and its offline dataset."""
+
+    tasks: tuple[str, ...]
+    teachers: tuple[Path, ...]  # teacher checkpoints (train_teachers), teachers[i] trained for tasks[i]
+    datasets: tuple[Path, ...]  # offline datasets, datasets[i] the one teachers[i] was trained on
+
+    def __post_init__(self) -> None:
+        check_task_list(self.tasks, "tasks")
+        for name in ("teachers", "datasets"):
+            if len(getattr(self, name)) != len(self.tasks):
+                raise ValueError(f"{name}: expected one per task ({len(self.tasks)}), got {len(getattr(self, name))}")
+
+
+def load_teachers(sources: StudentSources, loss: str) -> list[Teacher]:
+    """The frozen teachers, checked against their tasks and the loss (KL needs Gaussian teachers)."""
+    teachers = []
+    for task, path in zip(sources.tasks, sources.teachers):
+        teacher = load_teacher(path)
+        if teacher.task != task:
+            raise ValueError(f"{path}: a teacher for task {teacher.task!r}, expected one for {task!r}")
+        if (loss == "kl") != (teacher.config.actor == "gaussian"):
+            need = "gaussian" if loss == "kl" else "deterministic"
+            raise ValueError(f"{path}: the {loss} loss needs a {need} teacher, this one is {teacher.config.actor}")
+        teachers.append(teacher)
+    return teachers
+
+
+def build_states(sources: StudentSources, teachers: Sequence[Teacher], config: DistillConfig, episode_length: int,
+                 seed: int, rollout_envs: int, device: torch.device) -> list[TaskStates]:
+    """Each task's distillation states (offline or online) with its teacher's outputs cached."""
+    result = []
+    for task, teacher, dataset in zip(sources.tasks, teachers, sources.datasets):
+        task_seeds = derive_seeds([seed, task], ("subset", "episodes"))
+        if config.state_source == "offline":
+            states = offline_states(dataset, config.num_states, np.random.default_rng(task_seeds["subset"]))
+            source = {"source": "offline", "dataset": str(dataset), "states": len(states)}
+        else:
+            episodes = -(-config.num_states // episode_length)
+            seeds = [task_seeds["episodes"] + j for j in range(episodes)]
+            states = online_states(teacher.act, task, config.num_states, episode_length, seeds, rollout_envs)
+            source = {"source": "online", "episodes": episodes, "first_seed": seeds[0], "states": len(states)}
+        result.append(task_states(task, states, teacher.actor, source, device))
+    return result
+
+
+def student_policy(student: Student, task_index: int, device: torch.device) -> Callable[[np.ndarray], np.ndarray]:
+    """A numpy policy of the student for one task id (Gaussian students act with their mean)."""
+    @torch.no_grad()
+    def policy(obs: np.ndarray) -> np.ndarray:
+        x = torch.as_tensor(np.asarray(obs, dtype=np.float32), device=device)
+        return student(x, task_index).cpu().numpy().astype(np.float64)
+    return policy
+
+
+def distill_student(sources: StudentSources, config: DistillConfig, schedule: TrainSchedule, episode_length: int,
+                    seed: int, study_seed: int, paths: RunPaths, device: torch.device | str = "cpu",
+                    progress: bool = False, name: str = "student") -> dict:
+    """Distil the teachers of ``sources`` into one student; write checkpoint, curve and metrics.
+
+    Returns the metrics record (also written to ``paths.metrics``).
+    """
+    device = torch.device(device)
+    teachers = load_teachers(sources, config.loss)
+    levels = [t.level for t in teachers]
+    seeds = derive_seeds([study_seed, "distill", *sources.tasks, *levels, config.loss, seed],
+                         ("agent", "states", "eval", "final_eval"))
+    targets = build_states(sources, teachers, config, episode_length, seeds["states"], schedule.rollout_envs, device)
+    critics = [t.critic for t in teachers] if config.loss == "q" else None
+    distiller = Distiller(config, targets, OBS_DIM, ACT_DIM, seeds["agent"], critics, device)
+    student = distiller.student
+    policies = [student_policy(student, i, device) for i in range(len(sources.tasks))]
+
+    def evaluate(eval_seeds: list[int]) -> dict[str, float]:
+        row = {}
+        for task, policy in zip(sources.tasks, policies):
+            stats = returns_summary(episode_returns(policy, task, eval_seeds, episode_length, schedule.rollout_envs))
+            row |= {f"{key}_{task}": value for key, value in stats.items()}
+        row["return_mean"] = float(np.mean([row[f"return_mean_{task}"] for task in sources.tasks]))
+        return row
+
+    fingerprint = run_fingerprint({"tasks": sources.tasks, "config": to_dict(config), "schedule": to_dict(schedule),
+                                   "seed": seed, "study_seed": study_seed,
+                                   "teachers": [t.actor_sha256 for t in teachers],
+                                   "states": [t.source for t in targets]})
+    curve, seconds, resumed_from = train_loop(distiller, distiller.update, evaluate, schedule, seeds,
+                                              distiller.generator, paths, fingerprint, f"distill {name}", progress)
+    final_seeds = [seeds["final_eval"] + i for i in range(schedule.final_eval_episodes)]
+    metrics: dict = {"tasks": list(sources.tasks), "loss": config.loss, "levels": levels, "seed": seed,
+                     "gradient_steps": schedule.steps, "train_seconds": round(seconds, 1),
+                     "steps_per_second": round(schedule.steps / max(seconds, 1e-9), 1),
+                     "resumed_from_step": resumed_from}
+    for task, policy, teacher in zip(sources.tasks, policies, teachers):
+        final = episode_returns(policy, task, final_seeds, episode_length, schedule.rollout_envs)
+        teacher_return = float(teacher.metrics.get("return_mean", float("nan")))
+        metrics[task] = {"return_mean": float(final.mean()), "return_std": float(final.std()),
+                         "eval_episodes": len(final), "teacher_return_mean": teacher_return,
+                         "student_to_teacher": float(final.mean() / teacher_return)}
+    student_state = {k: v.cpu() for k, v in student.state_dict().items()}
+    save_checkpoint(paths.checkpoint, {
+        "kind": STUDENT_KIND, "tasks": list(sources.tasks), "seed": seed, "study_seed": study_seed,
+        "distill_config": to_dict(config), "schedule": to_dict(schedule), "episode_length": episode_length,
+        "obs_dim": OBS_DIM, "act_dim": ACT_DIM, "student": student_state,
+        "student_sha256": state_sha256(student_state),
+        "teachers": [{"path": str(p), "task": t.task, "level": t.level, "seed": t.seed, "actor": t.config.actor,
+                      "actor_sha256": t.actor_sha256} for p, t in zip(sources.teachers, teachers)],
+        "states": [t.source for t in targets], "metrics": metrics, "versions": package_versions()})
+    write_curve(paths.curve, curve)
+    write_json(paths.metrics, metrics)
+    paths.resume.unlink(missing_ok=True)
+    return metrics
+
+
+@dataclass
+class LoadedStudent:
+    """A trained student rebuilt from its checkpoint, with the tasks its task ids stand for."""
+
+    student: Student
+    tasks: list[str]
+    config: DistillConfig
+    checkpoint: dict
+
+    def policy(self, task: str) -> Callable[[np.ndarray], np.ndarray]:
+        return student_policy(self.student, self.tasks.index(task), torch.device("cpu"))
+
+
+def load_student(path: str | Path) -> LoadedStudent:
+    """Rebuild a student from a ``distill_student`` checkpoint (no params.yaml needed)."""
+    payload = load_checkpoint(path, STUDENT_KIND)
+    config = from_mapping(DistillConfig, payload["distill_config"], "distill_config")
+    student = Student(config.student, payload["obs_dim"], payload["act_dim"], len(payload["tasks"]),
+                      gaussian=config.loss == "kl")
+    student.load_state_dict(payload["student"])
+    return LoadedStudent(student.eval().requires_grad_(False), list(payload["tasks"]), config, payload)

@@ -1,0 +1,86 @@
+"""The states a student learns on, per task, with the frozen teacher's outputs cached once.
+
+- offline (thesis 4.2): states of the task's offline dataset D_i, all of them or ``num_states``
+  drawn without replacement;
+- online (thesis 5.2.3): states the teacher visits when it is rolled out on its task,
+  ``ceil(num_states / episode_length)`` episodes, batched.
+
+The teachers do not change during distillation, so their action (a Gaussian teacher: mean and
+standard deviation) at every state is computed here, once, not at every gradient step.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import torch
+
+from mop_core.data import read_dataset
+from mop_core.nn import GaussianActor
+from mop_core.rollout import collect_episodes
+
+STATE_SOURCES = ("offline", "online")
+
+
+@dataclass
+class TaskStates:
+    """One task's distillation states ``[N, obs]`` with the teacher's cached outputs."""
+
+    task: str
+    states: torch.Tensor
+    teacher_actions: torch.Tensor  # [N, act]: pi_i^T(s) (a Gaussian teacher: its mean mu_i^T(s))
+    teacher_std: torch.Tensor | None  # [N, act]: sigma_i^T(s) of a Gaussian teacher, else None
+    source: dict  # where the states came from (for the checkpoint)
+
+    def __len__(self) -> int:
+        return len(self.states)
+
+
+def offline_states(dataset: str | Path, num_states: int, rng: np.random.Generator) -> np.ndarray:
+    """``num_states`` observations of the dataset drawn without replacement (0 or more than N: all)."""
+    observations = read_dataset(dataset).arrays["observations"]
+    if 0 < num_states < len(observations):
+        index = np.sort(rng.choice(len(observations), size=num_states, replace=False))
+        observations = observations[index]
+    return np.asarray(observations, dtype=np.float32)
+
+
+def online_states(policy, task: str, num_states: int, episode_length: int, seeds: Sequence[int],
+                  num_envs: int) -> np.ndarray:
+    """The first ``num_states`` states the policy visits on ``task``, one episode per seed, in order.
+
+    ``seeds`` must hold at least ``ceil(num_states / episode_length)`` seeds.
+    """
+    episodes = math.ceil(num_states / episode_length)
+    if len(seeds) < episodes:
+        raise ValueError(f"seeds: {num_states} states need {episodes} episodes, got {len(seeds)} seeds")
+    arrays = collect_episodes(policy, task, list(seeds)[:episodes], episode_length, num_envs)
+    return np.asarray(arrays["observations"][:num_states], dtype=np.float32)
+
+
+@torch.no_grad()
+def teacher_outputs(actor: torch.nn.Module, states: torch.Tensor, chunk: int = 65536
+                    ) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """The teacher's action (Gaussian: mean) and, for a Gaussian teacher, its std at every state."""
+    means, stds = [], []
+    for part in states.split(chunk):
+        if isinstance(actor, GaussianActor):
+            mu, std = actor.distribution(part)
+            means.append(mu)
+            stds.append(std)
+        else:
+            means.append(actor(part))
+    return torch.cat(means), (torch.cat(stds) if stds else None)
+
+
+def task_states(task: str, states: np.ndarray, teacher_actor: torch.nn.Module, source: dict,
+                device: torch.device | str = "cpu") -> TaskStates:
+    """Wrap a task's states as tensors on ``device`` and cache the teacher's outputs at them."""
+    tensor = torch.as_tensor(states, dtype=torch.float32)
+    actions, std = teacher_outputs(teacher_actor, tensor)
+    device = torch.device(device)
+    return TaskStates(task, tensor.to(device), actions.to(device), None if std is None else std.to(device), source)

@@ -1,0 +1,257 @@
+"""Distillation: each loss against its equation, cached teacher targets, state sources, the
+student's task ids, and a full run (files, resume, determinism) on tiny teachers."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from mop_core.config import ConfigError
+from mop_core.distill.distiller import DistillConfig, Distiller
+from mop_core.distill.losses import gaussian_kl_per_state, mse_per_state, q_per_state, reduce_ensemble
+from mop_core.distill.run import StudentSources, distill_student, load_student
+from mop_core.distill.states import TaskStates, offline_states, online_states, task_states
+from mop_core.distill.student import Student, StudentConfig
+from mop_core.envs import WalkerEnv
+from mop_core.nn import DeterministicActor, EnsembleCritic, GaussianActor
+from mop_core.teachers import load_teacher
+from mop_core.training import RunPaths, TrainSchedule
+
+TINY = StudentConfig(hidden_sizes=(16, 16))
+
+
+def _targets(num_tasks: int, gaussian: bool, n: int = 64, seed: int = 0) -> list[TaskStates]:
+    gen = torch.Generator().manual_seed(seed)
+    out = []
+    for i in range(num_tasks):
+        actor = (GaussianActor if gaussian else DeterministicActor)(24, 6, (8,))
+        out.append(task_states(f"task{i}", torch.randn(n, 24, generator=gen).numpy(), actor, {"source": "test"}))
+    return out
+
+
+# ---- losses ------------------------------------------------------------------------------------------------
+def test_mse_is_zero_at_the_teacher_and_its_gradient_moves_the_student_towards_it():
+    teacher = torch.rand(32, 6) * 2 - 1
+    assert torch.equal(mse_per_state(teacher.clone(), teacher), torch.zeros(32))
+    student = torch.zeros(32, 6, requires_grad=True)
+    mse_per_state(student, teacher).mean().backward()
+    torch.testing.assert_close(student.grad, -2 * teacher / 32)  # d/da ||t - a||^2 = -2 (t - a)
+    assert (mse_per_state(student.detach() - 0.1 * student.grad, teacher) < mse_per_state(student.detach(),
+                                                                                          teacher)).all()
+
+
+def test_kl_is_zero_for_equal_gaussians_positive_otherwise_and_matches_monte_carlo():
+    gen = torch.Generator().manual_seed(0)
+    mu_s, mu_t = torch.randn(4, 6, generator=gen), torch.randn(4, 6, generator=gen)
+    std_s, std_t = torch.rand(4, 6, generator=gen) + 0.3, torch.rand(4, 6, generator=gen) + 0.3
+    assert torch.allclose(gaussian_kl_per_state(mu_t, std_t, mu_t, std_t), torch.zeros(4), atol=1e-6)
+    kl = gaussian_kl_per_state(mu_s, std_s, mu_t, std_t)
+    assert (kl > 0).all()
+    # Monte Carlo: E_{x ~ N_s}[log N_s(x) - log N_t(x)]
+    dist_s = torch.distributions.Normal(mu_s.double(), std_s.double())
+    dist_t = torch.distributions.Normal(mu_t.double(), std_t.double())
+    x = dist_s.sample((200_000,))
+    mc = (dist_s.log_prob(x) - dist_t.log_prob(x)).sum(-1).mean(0)
+    torch.testing.assert_close(kl.double(), mc, rtol=0.02, atol=0.02)
+    torch.testing.assert_close(kl.double(), torch.distributions.kl_divergence(dist_s, dist_t).sum(-1))
+
+
+def test_kl_gradient_moves_the_student_mean_towards_the_teacher():
+    mu_t, std_t = torch.full((1, 6), 0.5), torch.full((1, 6), 0.2)
+    mu_s = torch.zeros(1, 6, requires_grad=True)
+    gaussian_kl_per_state(mu_s, std_t, mu_t, std_t).sum().backward()
+    assert (mu_s.grad < 0).all()  # descending the gradient raises mu_s towards 0.5
+
+
+def test_q_loss_is_minus_the_reduced_ensemble_and_its_gradient_raises_q():
+    torch.manual_seed(0)
+    critic = EnsembleCritic(24, 6, (16,), 3).requires_grad_(False)
+    obs = torch.randn(8, 24)
+    action = torch.zeros(8, 6, requires_grad=True)
+    q = critic(obs, action)
+    torch.testing.assert_close(q_per_state(q, "min"), -q.min(0).values)
+    torch.testing.assert_close(q_per_state(q, "mean"), -q.mean(0))
+    with pytest.raises(ValueError, match="reduction"):
+        reduce_ensemble(q, "max")
+    q_per_state(q, "min").sum().backward()
+    stepped = (action - 1e-3 * action.grad).detach()
+    assert (critic(obs, stepped).min(0).values > q.min(0).values).all()
+
+
+# ---- student and states ------------------------------------------------------------------------------------
+def test_student_reads_a_one_hot_task_id_for_three_tasks():
+    student = Student(TINY, 24, 6, num_tasks=3)
+    assert student.actor.net[0].in_features == 27
+    obs = torch.randn(5, 24).repeat(3, 1)
+    ids = torch.arange(3).repeat_interleave(5)
+    out = student(obs, ids)
+    for i in range(3):
+        torch.testing.assert_close(out[5 * i:5 * (i + 1)], student(obs[:5], i))
+    assert not torch.allclose(out[:5], out[5:10]) and not torch.allclose(out[5:10], out[10:])
+    assert len(student.hidden_layers()) == 2
+
+
+def test_cached_teacher_targets_equal_the_teacher_outputs():
+    actor = GaussianActor(24, 6, (8,))
+    states = torch.randn(100, 24)
+    cached = task_states("stand", states.numpy(), actor, {})
+    mu, std = actor.distribution(states)
+    torch.testing.assert_close(cached.teacher_actions, mu.detach())
+    torch.testing.assert_close(cached.teacher_std, std.detach())
+    assert task_states("stand", states.numpy(), DeterministicActor(24, 6, (8,)), {}).teacher_std is None
+
+
+def test_offline_states_subsample_without_replacement(tiny_teachers):
+    _, datasets = tiny_teachers
+    from mop_core.data import read_dataset
+
+    all_obs = read_dataset(datasets["stand"]).arrays["observations"]
+    sub = offline_states(datasets["stand"], 30, np.random.default_rng(0))
+    assert sub.shape == (30, 24) and len(np.unique(sub, axis=0)) == 30
+    assert all((all_obs == row).all(1).any() for row in sub)
+    assert len(offline_states(datasets["stand"], 0, np.random.default_rng(0))) == len(all_obs)
+
+
+def test_online_states_are_exactly_the_states_the_teacher_visits(tiny_teachers):
+    checkpoints, _ = tiny_teachers
+    teacher = load_teacher(checkpoints[("walk", "deterministic")])
+    def row_by_row(obs):  # the same float arithmetic as the single-env replay below
+        return np.stack([teacher.act(o[None])[0] for o in obs])
+
+    states = online_states(row_by_row, "walk", 70, 50, seeds=[11, 12], num_envs=2)
+    assert states.shape == (70, 24)
+    visited = []
+    for seed in (11, 12):  # replay the teacher one env at a time
+        env = WalkerEnv("walk", seed, 50)
+        obs = env.reset()
+        for _ in range(50):
+            visited.append(obs)
+            obs = env.step(teacher.act(obs[None])[0]).observation
+    np.testing.assert_allclose(states, np.asarray(visited[:70], dtype=np.float32), atol=1e-6)
+
+
+# ---- the learner -------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("loss", ["mse", "q", "kl"])
+def test_every_loss_trains_every_student_parameter_and_leaves_teachers_frozen(loss):
+    targets = _targets(2, gaussian=loss == "kl")
+    critics = [EnsembleCritic(24, 6, (8,), 3) for _ in targets] if loss == "q" else None
+    before = [c.state_dict() for c in critics] if critics else []
+    before = [{k: v.clone() for k, v in s.items()} for s in before]
+    distiller = Distiller(DistillConfig(loss=loss, student=TINY, batch_size=8), targets, 24, 6, seed=0,
+                          critics=critics)
+    loss_value, metrics = distiller.loss(distiller._rows(8))
+    loss_value.backward()
+    for name, p in distiller.student.named_parameters():
+        assert p.grad is not None and p.grad.abs().sum() > 0, name
+    assert set(metrics) >= {"loss", "loss_task0", "loss_task1", "action_mse_task0"}
+    assert metrics["loss"] == pytest.approx((metrics["loss_task0"] + metrics["loss_task1"]) / 2, rel=1e-5)
+    for _ in range(3):
+        distiller.update()
+    for critic, state in zip(critics or [], before):
+        for k, v in critic.state_dict().items():
+            assert torch.equal(v, state[k])
+
+
+def test_mse_distillation_fits_the_teachers_and_is_repeatable():
+    targets = _targets(2, gaussian=False, n=256)
+    config = DistillConfig(loss="mse", student=StudentConfig(hidden_sizes=(64, 64)), learning_rate=3e-3,
+                           batch_size=64)
+    a = Distiller(config, targets, 24, 6, seed=3)
+    first = a.update()["loss"]
+    for _ in range(300):
+        last = a.update()["loss"]
+    assert last < 0.2 * first
+    b = Distiller(config, targets, 24, 6, seed=3)
+    for _ in range(301):
+        b.update()
+    for x, y in zip(a.student.parameters(), b.student.parameters()):
+        assert torch.equal(x, y)
+
+
+def test_config_errors_name_the_parameter():
+    with pytest.raises(ConfigError, match="loss: expected one of"):
+        DistillConfig(loss="l1")
+    with pytest.raises(ConfigError, match="num_states: expected a positive number of states for state_source online"):
+        DistillConfig(state_source="online")
+    with pytest.raises(ConfigError, match="hidden_sizes"):
+        StudentConfig(hidden_sizes=())
+    with pytest.raises(ValueError, match="Gaussian teachers"):
+        Distiller(DistillConfig(loss="kl", student=TINY), _targets(2, gaussian=False), 24, 6, seed=0)
+    with pytest.raises(ValueError, match="critic"):
+        Distiller(DistillConfig(loss="q", student=TINY), _targets(2, gaussian=False), 24, 6, seed=0)
+
+
+# ---- a whole run -------------------------------------------------------------------------------------------
+SCHEDULE = TrainSchedule(steps=20, eval_every=10, eval_episodes=1, final_eval_episodes=2, checkpoint_every=10,
+                         rollout_envs=2)
+
+
+def _paths(root) -> RunPaths:
+    return RunPaths(root / "student.pt", root / "metrics.json", root / "curve.tsv", root / "resume.pt")
+
+
+def _sources(tiny_teachers, actor: str) -> StudentSources:
+    checkpoints, datasets = tiny_teachers
+    return StudentSources(("stand", "walk"), (checkpoints[("stand", actor)], checkpoints[("walk", actor)]),
+                          (datasets["stand"], datasets["walk"]))
+
+
+@pytest.mark.parametrize("loss,source", [("mse", "offline"), ("q", "offline"), ("kl", "online")])
+def test_distill_run_writes_student_metrics_and_curve(tiny_teachers, tmp_path, loss, source):
+    actor = "gaussian" if loss == "kl" else "deterministic"
+    config = DistillConfig(loss=loss, student=TINY, learning_rate=1e-3, batch_size=16, state_source=source,
+                           num_states=120 if source == "online" else 0)
+    metrics = distill_student(_sources(tiny_teachers, actor), config, SCHEDULE, 50, 0, 0, _paths(tmp_path))
+    assert json.loads((tmp_path / "metrics.json").read_text()) == metrics
+    for task in ("stand", "walk"):
+        assert math.isfinite(metrics[task]["return_mean"]) and metrics[task]["eval_episodes"] == 2
+        teacher = load_teacher(_sources(tiny_teachers, actor).teachers[("stand", "walk").index(task)])
+        assert metrics[task]["teacher_return_mean"] == teacher.metrics["return_mean"]
+    header, *rows = (tmp_path / "curve.tsv").read_text().splitlines()
+    assert {"return_mean_stand", "return_mean_walk", "loss_stand", "loss_walk"} <= set(header.split("\t"))
+    assert len(rows) == 2 and not (tmp_path / "resume.pt").exists()
+    loaded = load_student(tmp_path / "student.pt")
+    assert loaded.tasks == ["stand", "walk"] and loaded.config == config
+    assert loaded.checkpoint["states"][0]["source"] == source
+    assert loaded.policy("walk")(np.zeros((3, 24))).shape == (3, 6)
+
+
+def test_distill_rejects_a_teacher_of_the_wrong_kind_or_task(tiny_teachers, tmp_path):
+    with pytest.raises(ValueError, match="needs a gaussian teacher"):
+        distill_student(_sources(tiny_teachers, "deterministic"), DistillConfig(loss="kl", student=TINY), SCHEDULE,
+                        50, 0, 0, _paths(tmp_path))
+    checkpoints, datasets = tiny_teachers
+    swapped = StudentSources(("stand", "walk"), (checkpoints[("walk", "deterministic")],
+                                                 checkpoints[("stand", "deterministic")]),
+                             (datasets["stand"], datasets["walk"]))
+    with pytest.raises(ValueError, match="a teacher for task 'walk', expected one for 'stand'"):
+        distill_student(swapped, DistillConfig(student=TINY), SCHEDULE, 50, 0, 0, _paths(tmp_path))
+    assert not (tmp_path / "student.pt").exists()
+
+
+def test_interrupted_distillation_resumes_to_the_same_student(tiny_teachers, tmp_path, monkeypatch):
+    config = DistillConfig(student=TINY, learning_rate=1e-3, batch_size=16)
+    sources = _sources(tiny_teachers, "deterministic")
+    distill_student(sources, config, SCHEDULE, 50, 0, 0, _paths(tmp_path / "a"))
+    original, calls = Distiller.update, {"n": 0}
+
+    def failing(self):
+        calls["n"] += 1
+        if calls["n"] == 15:
+            raise KeyboardInterrupt
+        return original(self)
+
+    monkeypatch.setattr(Distiller, "update", failing)
+    with pytest.raises(KeyboardInterrupt):
+        distill_student(sources, config, SCHEDULE, 50, 0, 0, _paths(tmp_path / "b"))
+    assert (tmp_path / "b" / "resume.pt").exists() and not (tmp_path / "b" / "student.pt").exists()
+    monkeypatch.setattr(Distiller, "update", original)
+    metrics = distill_student(sources, config, SCHEDULE, 50, 0, 0, _paths(tmp_path / "b"))
+    assert metrics["resumed_from_step"] == 10
+    a = load_student(tmp_path / "a" / "student.pt").student.state_dict()
+    b = load_student(tmp_path / "b" / "student.pt").student.state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)
