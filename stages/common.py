@@ -80,7 +80,7 @@ def teacher_name(task: str, level: str, actor: str, seed: int) -> str:
     return f"{task}-{level}-{actor}-{seed}"
 
 
-def teacher_paths(name: str, family: str = "teachers"):
+def run_paths(name: str, family: str = "teachers"):
     """Final checkpoint (DVC output), metrics and curve (results/), resume file (not an output:
     ``dvc repro`` deletes outputs before a stage runs, and the resume file must survive that)."""
     from mop_core.training import RunPaths

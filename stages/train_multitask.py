@@ -17,9 +17,9 @@ from common import (
     load_params,
     relabel_file,
     require_inputs,
+    run_paths,
     run_stage,
     study_config,
-    teacher_paths,
 )
 from teacher_config import check_level_and_seed, teacher_config, training_threads
 
@@ -48,7 +48,7 @@ def main() -> None:
     set_threads(threads)
     name = f"{args.level}-{args.seed}"
     metrics = train_multitask(study.tasks, sources, config, args.seed, study.seed,
-                              teacher_paths(name, "multitask"), device, progress_enabled(study.progress))
+                              run_paths(name, "multitask"), device, progress_enabled(study.progress))
     for task in study.tasks:
         m = metrics[task]
         print(f"multitask {name} on {task}: return {m['return_mean']:.1f} +- {m['return_std']:.1f} "

@@ -17,10 +17,10 @@ from common import (
     load_params,
     relabel_file,
     require_inputs,
+    run_paths,
     run_stage,
     study_config,
     teacher_name,
-    teacher_paths,
 )
 from teacher_config import check_level_and_seed, teacher_config, training_threads
 
@@ -51,7 +51,7 @@ def main() -> None:
 
     set_threads(threads)
     name = teacher_name(args.task, args.level, args.actor, args.seed)
-    metrics = train_teacher(args.task, source, config, args.seed, study.seed, teacher_paths(name), device,
+    metrics = train_teacher(args.task, source, config, args.seed, study.seed, run_paths(name), device,
                             progress_enabled(study.progress))
     print(f"{name}: return {metrics['return_mean']:.1f} +- {metrics['return_std']:.1f} "
           f"(dataset {metrics['dataset_return_mean']:.1f}, ratio {metrics['return_ratio']:.2f}) "

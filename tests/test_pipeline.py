@@ -14,7 +14,8 @@ import yaml
 from conftest import ROOT, TINY_PROFILE
 
 pytestmark = pytest.mark.slow
-PROJECT_FILES = ["dvc.yaml", "stages", "mop_core", "profiles", "pyproject.toml", ".dvc/config", ".dvcignore"]
+PROJECT_FILES = ["dvc.yaml", "stages", "mop_core", "profiles", "pyproject.toml", ".dvc/config", ".dvc/.gitignore",
+                 ".dvcignore"]
 
 
 def _run(args: list[str], cwd: Path, check: bool = True) -> subprocess.CompletedProcess:
@@ -53,35 +54,100 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
             assert (repo / "data" / "teachers" / f"{name}.pt").is_file()
             assert (repo / "results" / "teachers" / "curves" / f"{name}.tsv").is_file()
     assert (repo / "data" / "multitask" / "medium-0.pt").is_file()
+    for loss in ("mse", "q", "kl"):
+        assert (repo / "data" / "students" / f"{loss}-medium-0.pt").is_file()
+        assert (repo / "results" / "students" / "curves" / f"{loss}-medium-0.tsv").is_file()
     assert not list((repo / "data" / "resume").glob("*"))  # finished runs leave no resume files
     shown = json.loads(_run(["dvc", "metrics", "show", "--json"], repo).stdout)
     text = json.dumps(shown)
     assert "expert_return" in text and "max_abs_diff_vs_stored" in text
     assert "dataset_return_mean" in text and "gradient_steps_per_task" in text
+    assert "student_to_teacher" in text
+    evaluation = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
+    assert evaluation == shown[""]["data"]["results/eval/metrics.json"]["data"]  # dvc reads what eval wrote
+    for task in ("stand", "walk"):
+        for group in ("behaviour_expert", "teacher_medium_deterministic", "multitask_medium", "student_mse_medium",
+                      "student_kl_medium"):
+            stats = evaluation[task][group]
+            assert stats["ci_low"] <= stats["mean"] <= stats["ci_high"] and stats["n"] == 2
+        assert "student_q_medium_to_teacher" in evaluation[task]
+    assert set(evaluation["cross_task"]["medium"]["stand"]) == {"stand", "walk"}
+    assert (repo / "results" / "eval" / "returns.png").read_bytes()[:4] == b"\x89PNG"
     stages = _run(["dvc", "stage", "list"], repo).stdout
     assert "train_teachers@stand-medium-gaussian-0" in stages and "train_multitask@medium-0" in stages
+    assert "distill@kl-medium-0" in stages and "eval" in stages
+    plots = _run(["dvc", "plots", "show", "--json"], repo).stdout
+    assert "results/eval/returns.tsv" in plots and "results/students/curves" in plots
     status = _run(["dvc", "status"], repo).stdout
     assert "up to date" in status.lower()
 
 
-def test_exp_run_of_td3_param_reruns_collect_and_relabel(repo):
+def _commit(repo: Path, message: str) -> None:
     _run(["git", "-c", "user.name=t", "-c", "user.email=t@t", "add", "-A"], repo)
-    _run(["git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "lock", "--allow-empty"], repo)
-    out = _run(["dvc", "exp", "run", "-S", "collect.td3.learning_rate=0.002"], repo).stdout
-    assert "Running stage 'collect'" in out and "Running stage 'relabel'" in out
+    _run(["git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", message, "--allow-empty"], repo)
 
 
-def test_exp_run_of_relabel_param_skips_collect(repo):
-    out = _run(["dvc", "exp", "run", "-S", "relabel.physics_check_transitions=20"], repo).stdout
-    assert "Running stage 'relabel'" in out
-    assert "Running stage 'collect'" not in out
+def _stages_run(out: str) -> set[str]:
+    return {line.split("'")[1] for line in out.splitlines() if line.startswith("Running stage '")}
 
 
-def test_exp_run_of_pbrl_param_reruns_only_the_teacher_stages(repo):
-    out = _run(["dvc", "exp", "run", "-S", "train_teachers.pbrl.learning_rate=0.002"], repo).stdout
-    assert "Running stage 'train_teachers@walk-medium-deterministic-0'" in out
-    assert "Running stage 'train_multitask@medium-0'" in out
-    assert "Running stage 'collect'" not in out and "Running stage 'relabel'" not in out
+# Which stages a parameter change invalidates: `dvc repro --dry` lists the stages whose own params or
+# files changed (it does not run them, so it cannot show the downstream stages their new outputs
+# would invalidate; the distill test below shows that propagation in a real run).
+def _invalidated_by(repo: Path, section: str, key: str, value) -> set[str]:
+    original = (repo / "params.yaml").read_text()
+    params = yaml.safe_load(original)
+    node = params[section]
+    *path, last = key.split(".")
+    for part in path:
+        node = node[part]
+    node[last] = value
+    (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    try:
+        return _stages_run(_run(["dvc", "repro", "--dry"], repo).stdout)
+    finally:
+        (repo / "params.yaml").write_text(original)
+
+
+def test_each_parameter_section_invalidates_only_its_stages(repo):
+    _commit(repo, "lock")
+    assert _invalidated_by(repo, "collect", "td3.learning_rate", 0.002) == {"collect"}
+    assert _invalidated_by(repo, "relabel", "physics_check_transitions", 20) == {"relabel"}
+    teachers = _invalidated_by(repo, "train_teachers", "pbrl.learning_rate", 0.002)
+    assert {"train_teachers@walk-medium-deterministic-0", "train_multitask@medium-0"} <= teachers
+    assert not {"collect", "relabel", "eval"} & teachers and not any(s.startswith("distill") for s in teachers)
+    assert _invalidated_by(repo, "eval", "episodes", 2) == {"eval"}
+
+
+def test_exp_run_of_distill_param_reruns_only_distill_and_eval(repo):
+    out = _run(["dvc", "exp", "run", "-S", "distill.learning_rate=0.002"], repo).stdout
+    assert _stages_run(out) == {"distill@mse-medium-0", "distill@q-medium-0", "distill@kl-medium-0", "eval"}
+    metrics = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
+    assert "student_mse_medium" in metrics["stand"]
+
+
+def test_queued_sweep_and_a_shared_remote(repo, tmp_path):
+    _run(["git", "checkout", "-q", "--", "."], repo)
+    _run(["dvc", "checkout", "-q"], repo)
+    for lr in ("0.003", "0.004"):
+        _run(["dvc", "exp", "run", "--queue", "-S", f"distill.learning_rate={lr}"], repo)
+    _run(["dvc", "exp", "run", "--run-all", "-j", "1"], repo)
+    status = _run(["dvc", "queue", "status"], repo).stdout
+    assert status.count("Success") >= 2 and "Failed" not in status
+    shown = _run(["dvc", "exp", "show", "--json"], repo).stdout
+    assert "0.003" in shown and "0.004" in shown and "student_to_teacher" in shown
+
+    # another machine: clone the git repo, pull data and run cache from a shared remote, nothing reruns
+    remote = tmp_path / "remote"
+    _run(["dvc", "remote", "add", "-d", "shared", str(remote)], repo)
+    _commit(repo, "shared remote")
+    _run(["dvc", "push", "--run-cache"], repo)
+    clone = tmp_path / "clone"
+    _run(["git", "clone", "-q", str(repo), str(clone)], tmp_path)
+    _run(["dvc", "pull", "--run-cache"], clone)
+    out = _run(["dvc", "repro"], clone).stdout
+    assert not _stages_run(out), out
+    assert (clone / "data" / "students" / "mse-medium-0.pt").is_file()
 
 
 def test_bad_parameter_fails_before_compute_and_names_the_key(repo, tmp_path):
@@ -117,3 +183,24 @@ def test_bad_parameter_fails_before_compute_and_names_the_key(repo, tmp_path):
     result = _run(teacher, work, check=False)  # no datasets in this directory
     assert result.returncode == 2 and "missing input data/datasets/stand-medium.hdf5" in result.stderr
     assert not (work / "data" / "teachers").exists()
+
+    params["study"]["tasks"] = ["stand", "walk"]
+    params["train_teachers"]["actors"] = ["deterministic"]
+    (work / "params.yaml").write_text(yaml.safe_dump(params))
+    student = [sys.executable, "stages/distill.py", "--loss", "mse", "--pairing", "medium", "--seed", "0"]
+    result = _run(student, work, check=False)
+    assert result.returncode == 2
+    assert "distill.losses: expected gaussian teachers for the kl loss: add gaussian to train_teachers.actors" \
+        in result.stderr
+    params["distill"]["losses"] = ["mse"]
+    params["distill"]["student"]["hidden_sizes"] = []
+    (work / "params.yaml").write_text(yaml.safe_dump(params))
+    result = _run(student, work, check=False)
+    assert "distill.student.hidden_sizes: expected a non-empty list" in result.stderr
+    params["distill"]["student"]["hidden_sizes"] = [16]
+    (work / "params.yaml").write_text(yaml.safe_dump(params))
+    result = _run([*student[:5], "expert+medium+medium", *student[6:]], work, check=False)
+    assert "--pairing: expected one level or one per study task (2) joined by '+'" in result.stderr
+    result = _run(student, work, check=False)
+    assert "missing input data/teachers/stand-medium-deterministic-0.pt" in result.stderr
+    assert not (work / "data" / "students").exists()

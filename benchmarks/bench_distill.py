@@ -1,0 +1,102 @@
+"""Speed of distillation and of evaluation rollouts, measured in one run on this machine.
+
+Prints, at the quick (params.yaml) and thesis (profiles/thesis.yaml) student and teacher sizes:
+- distillation steps/s (MSE loss, 2 tasks) with the teachers' actions cached once per state (what
+  the distill stage does) and with the frozen teachers re-run on every batch (what the reference
+  code did), and their ratio;
+- evaluation env steps/s of a student policy: one walker at a time vs ``rollout_envs`` walkers
+  stepped together (one batched policy call per step), and their ratio.
+
+Run: ``python benchmarks/bench_distill.py [--threads N]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import torch
+import yaml
+from timing import rate
+
+from mop_core.config import from_mapping
+from mop_core.distill.distiller import DistillConfig, Distiller
+from mop_core.distill.run import student_policy
+from mop_core.distill.states import TaskStates, task_states, teacher_outputs
+from mop_core.nn import DeterministicActor
+from mop_core.rollout import episode_returns
+from mop_core.runtime import set_threads
+
+ROOT = Path(__file__).resolve().parents[1]
+STATES = 100_000  # per task (the quick profile's dataset size)
+
+
+def profile(path: Path) -> tuple[DistillConfig, tuple[int, ...], int]:
+    params = yaml.safe_load(path.read_text())
+    raw = {k: v for k, v in params["distill"].items()
+           if k not in ("losses", "pairings", "seeds", "teacher_seed", "threads", "schedule")}
+    config = from_mapping(DistillConfig, raw | {"loss": "mse"}, "distill")
+    return config, tuple(params["train_teachers"]["pbrl"]["hidden_sizes"]), params["eval"]["rollout_envs"]
+
+
+class RecomputingDistiller(Distiller):
+    """The same step, but every batch's teacher actions come from a fresh teacher forward pass."""
+
+    def __init__(self, teachers: list[torch.nn.Module], *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.teachers = teachers
+
+    def loss(self, rows):
+        live = [TaskStates(t.task, t.states[r], teacher_outputs(actor, t.states[r])[0], None, t.source)
+                for t, r, actor in zip(self.targets, rows, self.teachers)]
+        cached, self.targets = self.targets, live
+        try:
+            return super().loss([torch.arange(len(r)) for r in rows])
+        finally:
+            self.targets = cached
+
+
+def distill_rates(name: str, config: DistillConfig, teacher_sizes: tuple[int, ...], steps: int) -> None:
+    torch.manual_seed(0)
+    teachers = [DeterministicActor(24, 6, teacher_sizes).requires_grad_(False) for _ in range(2)]
+    states = [torch.randn(STATES, 24).numpy() for _ in teachers]
+    targets = [task_states(f"task{i}", s, t, {}) for i, (s, t) in enumerate(zip(states, teachers))]
+    cached = Distiller(config, targets, 24, 6, seed=0)
+    live = RecomputingDistiller(teachers, config, targets, 24, 6, seed=0)
+
+    def run(d):
+        return lambda: [d.update() for _ in range(steps)]
+
+    fast, slow = rate(run(cached), steps), rate(run(live), steps)
+    print(f"{name}: distill steps/s (student {list(config.student.hidden_sizes)}, teacher {list(teacher_sizes)}, "
+          f"batch {config.batch_size}/task x 2 tasks): cached {fast:.0f}, recomputed {slow:.0f}, "
+          f"ratio {fast / slow:.2f}x")
+
+
+def rollout_rates(envs: int, hidden: tuple[int, ...], episode_length: int = 200) -> None:
+    from mop_core.distill.student import Student, StudentConfig
+
+    student = Student(StudentConfig(hidden_sizes=hidden), 24, 6, 2).eval()
+    policy = student_policy(student, 0, torch.device("cpu"))
+    single = rate(lambda: episode_returns(policy, "walk", [0], episode_length, 1), episode_length, repeats=2)
+    batched = rate(lambda: episode_returns(policy, "walk", list(range(envs)), episode_length, envs),
+                   episode_length * envs, repeats=2)
+    print(f"eval env steps/s (student {list(hidden)}): one env {single:.0f}, {envs} envs batched {batched:.0f}, "
+          f"ratio {batched / single:.2f}x")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (the stage's distill.threads)")
+    args = parser.parse_args()
+    set_threads(args.threads)
+    print(f"torch {torch.__version__}, {args.threads} thread(s)")
+    quick, quick_teacher, envs = profile(ROOT / "params.yaml")
+    thesis, thesis_teacher, _ = profile(ROOT / "profiles" / "thesis.yaml")
+    distill_rates("quick", quick, quick_teacher, steps=100)
+    distill_rates("thesis", thesis, thesis_teacher, steps=20)
+    rollout_rates(envs, quick.student.hidden_sizes)
+
+
+if __name__ == "__main__":
+    main()
