@@ -39,3 +39,23 @@ def returns_bar_chart(path: str | os.PathLike, summary: Mapping[str, Mapping[str
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
+
+
+def learning_curves(path: str | os.PathLike, curves: Mapping[str, list[dict]], tasks: list[str], title: str) -> None:
+    """One panel per task: ``return_mean_<task>`` against ``step`` for every named run's curve rows."""
+    fig, axes = plt.subplots(1, len(tasks), figsize=(5 * len(tasks), 3.5), squeeze=False)
+    for ax, task in zip(axes[0], tasks):
+        for name, rows in curves.items():
+            key = f"return_mean_{task}"
+            points = [(float(r["step"]), float(r[key])) for r in rows if key in r]
+            if points:
+                ax.plot(*zip(*points), marker="o", markersize=3, label=name)
+        ax.set_xlabel("gradient step")
+        ax.set_ylabel("episode return")
+        ax.set_title(task)
+        ax.legend(fontsize=7)
+    fig.suptitle(title)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)

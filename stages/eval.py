@@ -8,7 +8,8 @@ seed), the naive multi-task baseline and every student, on the tasks they were t
 each task's deterministic teacher on every other task's reward (cross-task table, thesis 6.4.5).
 Writes results/eval/metrics.json (for `dvc metrics show/diff`), results/eval/returns.tsv (one row
 per policy group and task, for `dvc plots`), results/eval/returns.json (every episode's return)
-and the bar chart results/eval/returns.png.
+the bar chart results/eval/returns.png and the students' learning curves
+results/eval/student_curves.png.
 """
 
 from __future__ import annotations
@@ -29,10 +30,11 @@ from common import (
 )
 from distill_config import distill_grid, pairing_levels, student_name, teacher_actor
 
+from mop_core.artifacts import read_curve
 from mop_core.config import from_mapping
 from mop_core.data import write_json
 from mop_core.evaluation import EvalConfig, Job, PolicySpec, episode_seeds, run_jobs, summarise_group
-from mop_core.plots import returns_bar_chart
+from mop_core.plots import learning_curves, returns_bar_chart
 from mop_core.runtime import progress_enabled
 
 OUT = RESULTS / "eval"
@@ -139,6 +141,15 @@ def main() -> None:
     plotted = {task: {g: s for g, s in summary[task].items() if not g.startswith("cross_")} for task in study.tasks}
     returns_bar_chart(OUT / "returns.png", plotted,
                       f"returns over {config.seeds} eval seeds x {config.episodes} episodes (95% CI)")
+    grid = distill_grid(params, study)
+    curves = {}
+    for loss in grid.losses:
+        for pairing in grid.pairings:
+            for seed in grid.seeds:
+                name = student_name(loss, pairing, seed)
+                curves[name] = read_curve(run_paths(name, "students").curve)
+    learning_curves(OUT / "student_curves.png", curves, list(study.tasks),
+                    "students: evaluation return during distillation")
     for task in study.tasks:
         for group, s in plotted[task].items():
             print(f"{task:6s} {group:32s} {s['mean']:7.1f}  [{s['ci_low']:.1f}, {s['ci_high']:.1f}]  "

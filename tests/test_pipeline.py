@@ -72,7 +72,8 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
             assert stats["ci_low"] <= stats["mean"] <= stats["ci_high"] and stats["n"] == 2
         assert "student_q_medium_to_teacher" in evaluation[task]
     assert set(evaluation["cross_task"]["medium"]["stand"]) == {"stand", "walk"}
-    assert (repo / "results" / "eval" / "returns.png").read_bytes()[:4] == b"\x89PNG"
+    for figure in ("returns.png", "student_curves.png"):
+        assert (repo / "results" / "eval" / figure).read_bytes()[:4] == b"\x89PNG"
     stages = _run(["dvc", "stage", "list"], repo).stdout
     assert "train_teachers@stand-medium-gaussian-0" in stages and "train_multitask@medium-0" in stages
     assert "distill@kl-medium-0" in stages and "eval" in stages

@@ -12,6 +12,7 @@ frozen).
 from __future__ import annotations
 
 import copy
+import math
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -23,6 +24,15 @@ from mop_core.distill.states import STATE_SOURCES, TaskStates
 from mop_core.distill.student import Student, StudentConfig
 from mop_core.nn import EnsembleCritic
 
+LR_SCHEDULES = ("constant", "cosine")
+
+
+def learning_rate_at(config: "DistillConfig", step: int, total_steps: int) -> float:
+    """The learning rate of gradient step ``step`` (0-based) of ``total_steps``."""
+    if config.lr_schedule == "constant":
+        return config.learning_rate
+    return config.learning_rate * 0.5 * (1.0 + math.cos(math.pi * min(step, total_steps) / total_steps))
+
 
 @dataclass(frozen=True)
 class DistillConfig:
@@ -31,6 +41,7 @@ class DistillConfig:
     loss: str = "mse"  # mse | q | kl (kl needs Gaussian teachers; its student is Gaussian too)
     student: StudentConfig = field(default_factory=StudentConfig)
     learning_rate: float = 1e-4
+    lr_schedule: str = "constant"  # constant | cosine: lr * (1 + cos(pi * step / steps)) / 2, to 0 at the end
     batch_size: int = 256  # states per task per gradient step
     q_reduction: str = "min"  # Q loss: reduce the teacher's critic ensemble by min or mean
     state_source: str = "offline"  # offline: the task's dataset; online: states the teacher visits
@@ -41,6 +52,7 @@ class DistillConfig:
         require(self.q_reduction in Q_REDUCTIONS, "q_reduction", f"one of {Q_REDUCTIONS}", self.q_reduction)
         require(self.state_source in STATE_SOURCES, "state_source", f"one of {STATE_SOURCES}", self.state_source)
         require(self.learning_rate > 0, "learning_rate", "a positive number", self.learning_rate)
+        require(self.lr_schedule in LR_SCHEDULES, "lr_schedule", f"one of {LR_SCHEDULES}", self.lr_schedule)
         require(self.batch_size >= 1, "batch_size", "a positive integer", self.batch_size)
         require(self.num_states >= 0, "num_states", "a non-negative integer (0 = the whole dataset)",
                 self.num_states)
@@ -52,8 +64,10 @@ class Distiller:
     """A student, its optimiser and the cached targets of every task; ``update()`` is one step."""
 
     def __init__(self, config: DistillConfig, targets: Sequence[TaskStates], obs_dim: int, act_dim: int, seed: int,
-                 critics: Sequence[EnsembleCritic] | None = None, device: torch.device | str = "cpu"):
+                 critics: Sequence[EnsembleCritic] | None = None, device: torch.device | str = "cpu",
+                 total_steps: int = 1):
         self.config, self.device, self.targets = config, torch.device(device), list(targets)
+        self.total_steps = total_steps  # the length of the learning-rate schedule
         self.tasks = [t.task for t in self.targets]
         if config.loss == "q" and (critics is None or len(critics) != len(self.targets)):
             raise ValueError("critics: the Q loss needs one teacher critic ensemble per task")
@@ -102,6 +116,10 @@ class Distiller:
 
     def update(self) -> dict[str, float]:
         loss, metrics = self.loss(self._rows(self.config.batch_size))
+        lr = learning_rate_at(self.config, self.updates, self.total_steps)
+        for group in self.optimizer.param_groups:
+            group["lr"] = lr
+        metrics["learning_rate"] = lr
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()

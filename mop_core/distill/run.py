@@ -102,7 +102,7 @@ def distill_student(sources: StudentSources, config: DistillConfig, schedule: Tr
                          ("agent", "states", "eval", "final_eval"))
     targets = build_states(sources, teachers, config, episode_length, seeds["states"], schedule.rollout_envs, device)
     critics = [t.critic for t in teachers] if config.loss == "q" else None
-    distiller = Distiller(config, targets, OBS_DIM, ACT_DIM, seeds["agent"], critics, device)
+    distiller = Distiller(config, targets, OBS_DIM, ACT_DIM, seeds["agent"], critics, device, schedule.steps)
     student = distiller.student
     policies = [student_policy(student, i, device) for i in range(len(sources.tasks))]
 
