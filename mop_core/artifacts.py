@@ -53,10 +53,3 @@ def write_curve(path: str | os.PathLike, rows: list[dict]) -> None:
     with atomic_path(path) as tmp:
         lines = ["\t".join(columns)] + ["\t".join(str(row[c]) for c in columns) for row in rows]
         tmp.write_text("\n".join(lines) + "\n")
-
-
-def read_curve(path: str | os.PathLike) -> list[dict[str, str]]:
-    """The rows of a :func:`write_curve` TSV (values as strings)."""
-    header, *lines = Path(path).read_text().splitlines()
-    keys = header.split("\t")
-    return [dict(zip(keys, line.split("\t"))) for line in lines]

@@ -59,3 +59,11 @@ def learning_curves(path: str | os.PathLike, curves: Mapping[str, list[dict]], t
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
+
+
+def read_curve(path: str | os.PathLike) -> list[dict[str, str]]:
+    """The rows of a learning-curve TSV (:func:`mop_core.artifacts.write_curve`), values as strings."""
+    with open(path) as f:
+        header, *lines = f.read().splitlines()
+    keys = header.split("\t")
+    return [dict(zip(keys, line.split("\t"))) for line in lines]

@@ -30,11 +30,10 @@ from common import (
 )
 from distill_config import distill_grid, pairing_levels, student_name, teacher_actor
 
-from mop_core.artifacts import read_curve
 from mop_core.config import from_mapping
 from mop_core.data import write_json
 from mop_core.evaluation import EvalConfig, Job, PolicySpec, episode_seeds, run_jobs, summarise_group
-from mop_core.plots import learning_curves, returns_bar_chart
+from mop_core.plots import learning_curves, read_curve, returns_bar_chart
 from mop_core.runtime import progress_enabled
 
 OUT = RESULTS / "eval"
