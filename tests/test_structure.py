@@ -1,0 +1,57 @@
+"""Shared-computation measures: tau-b against scipy (random and tied data), its extremes, CKA's
+invariances, and activation capture from a student."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from scipy import stats
+
+from mop_core.distill.student import Student, StudentConfig
+from mop_core.structure import hidden_activations, kendall_tau_b, linear_cka
+
+
+@pytest.mark.parametrize("tied", [False, True])
+def test_tau_b_equals_scipy_on_random_and_tied_data(tied):
+    rng = np.random.default_rng(0)
+    x, y = rng.normal(size=(20, 64)), rng.normal(size=(20, 64))
+    if tied:  # ReLU-like: many exact zeros
+        x, y = np.maximum(x, 0.3), np.maximum(0.5 * x + y, 0.0)
+    ours = kendall_tau_b(torch.tensor(x), torch.tensor(y), chunk=7).numpy()
+    ref = [stats.kendalltau(a, b, variant="b").statistic for a, b in zip(x, y)]
+    np.testing.assert_allclose(ours, ref, rtol=1e-6)  # agrees to ~1e-8 relative (floating-point order)
+
+
+def test_tau_b_is_one_for_identical_and_minus_one_for_reversed_and_nan_for_constant():
+    v = torch.rand(50)
+    assert kendall_tau_b(v, v).item() == pytest.approx(1.0)
+    assert kendall_tau_b(v, -v).item() == pytest.approx(-1.0)
+    assert torch.isnan(kendall_tau_b(v, torch.zeros(50)))
+    with pytest.raises(ValueError, match="same shape"):
+        kendall_tau_b(torch.rand(3, 5), torch.rand(3, 6))
+
+
+def test_cka_is_invariant_to_orthogonal_transforms_and_isotropic_scaling():
+    gen = torch.Generator().manual_seed(0)
+    x = torch.randn(200, 32, generator=gen, dtype=torch.float64)
+    y = x @ torch.randn(32, 16, generator=gen, dtype=torch.float64) + 0.5 * torch.randn(200, 16, generator=gen,
+                                                                                          dtype=torch.float64)
+    q, _ = torch.linalg.qr(torch.randn(32, 32, generator=gen, dtype=torch.float64))
+    base = linear_cka(x, y)
+    assert 0 < base < 1
+    assert linear_cka(x @ q, y) == pytest.approx(base, rel=1e-10)
+    assert linear_cka(3.7 * x, y) == pytest.approx(base, rel=1e-10)
+    assert linear_cka(x, x) == pytest.approx(1.0)
+    assert linear_cka(x, torch.randn(200, 32, generator=gen, dtype=torch.float64)) < 0.3
+
+
+def test_hidden_activations_are_the_post_relu_outputs_of_every_hidden_layer():
+    student = Student(StudentConfig(hidden_sizes=(8, 5)), 24, 6, num_tasks=2)
+    obs = torch.randn(4, 24)
+    acts = hidden_activations(student, obs, 1)
+    assert [a.shape for a in acts] == [(4, 8), (4, 5)] and all((a >= 0).all() for a in acts)
+    net = student.actor.net
+    x = torch.cat([obs, torch.tensor([[0.0, 1.0]]).expand(4, 2)], 1)
+    torch.testing.assert_close(acts[0], torch.relu(net[0](x)))
+    assert not student.actor.net[1]._forward_hooks  # hooks removed
