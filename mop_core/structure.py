@@ -59,3 +59,34 @@ def hidden_activations(student, obs: torch.Tensor, task: int | torch.Tensor) -> 
         for hook in hooks:
             hook.remove()
     return captured
+
+
+@torch.no_grad()
+def per_state_comparison(student, obs: torch.Tensor, own_task: int) -> list[dict[int, torch.Tensor]]:
+    """Thesis 6.2, per state: for each visited state (``obs [N, o]``, visited while acting as
+    ``own_task``), tau-b between a layer's activations under the own task id and under every other
+    task id. Returns per hidden layer ``{other task: tau [N]}``."""
+    own = hidden_activations(student, obs, own_task)
+    result: list[dict[int, torch.Tensor]] = [{} for _ in own]
+    for other in range(student.num_tasks):
+        if other == own_task:
+            continue
+        for layer, acts in enumerate(hidden_activations(student, obs, other)):
+            result[layer][other] = kendall_tau_b(own[layer], acts)
+    return result
+
+
+def average_comparison(mean_activations: list[list[torch.Tensor]]) -> list[torch.Tensor]:
+    """Thesis 6.2, on averages: ``mean_activations[task][layer]`` is the mean activation ``[width]`` of
+    each neuron over that task's own visited states (under its own task id). Returns per layer the
+    ``[m, m]`` matrix of tau-b between every pair of tasks (1 on the diagonal)."""
+    m = len(mean_activations)
+    layers = len(mean_activations[0])
+    out = []
+    for layer in range(layers):
+        tau = torch.ones(m, m, dtype=torch.float64)
+        for i in range(m):
+            for j in range(i + 1, m):
+                tau[i, j] = tau[j, i] = kendall_tau_b(mean_activations[i][layer], mean_activations[j][layer])
+        out.append(tau)
+    return out

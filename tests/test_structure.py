@@ -9,7 +9,13 @@ import torch
 from scipy import stats
 
 from mop_core.distill.student import Student, StudentConfig
-from mop_core.structure import hidden_activations, kendall_tau_b, linear_cka
+from mop_core.structure import (
+    average_comparison,
+    hidden_activations,
+    kendall_tau_b,
+    linear_cka,
+    per_state_comparison,
+)
 
 
 @pytest.mark.parametrize("tied", [False, True])
@@ -55,3 +61,33 @@ def test_hidden_activations_are_the_post_relu_outputs_of_every_hidden_layer():
     x = torch.cat([obs, torch.tensor([[0.0, 1.0]]).expand(4, 2)], 1)
     torch.testing.assert_close(acts[0], torch.relu(net[0](x)))
     assert not student.actor.net[1]._forward_hooks  # hooks removed
+
+
+def _two_task_student(task_weight: torch.Tensor) -> Student:
+    """One hidden layer of 6 neurons whose task-id input weights are ``task_weight [6, 2]``."""
+    student = Student(StudentConfig(hidden_sizes=(6,)), 3, 1, num_tasks=2)
+    first = student.actor.net[0]
+    with torch.no_grad():
+        first.weight.zero_()
+        first.weight[:, :3] = torch.arange(1.0, 19.0).view(6, 3) / 10  # state part
+        first.weight[:, 3:] = task_weight
+        first.bias.zero_()
+    return student
+
+
+def test_per_state_and_average_paths_on_a_network_with_known_overlap():
+    obs = torch.rand(10, 3) + 0.1
+    shared = _two_task_student(torch.zeros(6, 2))  # the task id changes nothing: full overlap
+    (layer,) = per_state_comparison(shared, obs, own_task=0)
+    torch.testing.assert_close(layer[1], torch.ones(10, dtype=torch.float64))
+    # a task id that dominates the state: activations follow relu(b_t), a known ranking per task
+    b0 = torch.tensor([50.0, 40.0, 30.0, 20.0, 10.0, -10.0])
+    b1 = torch.tensor([-10.0, 10.0, 20.0, 30.0, 40.0, 50.0])
+    split = _two_task_student(torch.stack([b0, b1], 1))
+    (layer,) = per_state_comparison(split, obs, own_task=0)
+    expected = kendall_tau_b(torch.relu(b0), torch.relu(b1)).item()
+    assert expected < -0.5
+    torch.testing.assert_close(layer[1], torch.full((10,), expected, dtype=torch.float64))
+    means = [[hidden_activations(split, obs, t)[0].mean(0)] for t in (0, 1)]
+    (tau,) = average_comparison(means)
+    assert tau[0, 0] == 1 and tau[0, 1] == tau[1, 0] == pytest.approx(expected)
