@@ -28,10 +28,10 @@ from common import (
     study_config,
     teacher_name,
 )
-from distill_config import distill_grid, pairing_levels, student_name, teacher_actor
+from distill_config import DistillGrid, distill_grid, pairing_levels, student_name, teacher_actor
 
 from mop_core.config import from_mapping
-from mop_core.data import write_json
+from mop_core.data import atomic_path, write_json
 from mop_core.evaluation import EvalConfig, Job, PolicySpec, episode_seeds, run_jobs, summarise_group
 from mop_core.plots import learning_curves, read_curve, returns_bar_chart
 from mop_core.runtime import progress_enabled
@@ -39,11 +39,10 @@ from mop_core.runtime import progress_enabled
 OUT = RESULTS / "eval"
 
 
-def study_jobs(params: dict, study) -> tuple[list[Job], dict[str, dict[str, str]]]:
+def study_jobs(params: dict, study, grid: DistillGrid) -> tuple[list[Job], dict[str, dict[str, str]]]:
     """Every evaluation job of the study, and for each student group per task its teacher's group."""
     teachers = section(params, "train_teachers")
     multitask = section(params, "train_multitask")
-    grid = distill_grid(params, study)
     jobs: list[Job] = []
     reference: dict[str, dict[str, str]] = defaultdict(dict)
     for task in study.tasks:
@@ -97,7 +96,8 @@ def main() -> None:
     params = load_params()
     study = study_config(params)
     config = from_mapping(EvalConfig, section(params, "eval"), "eval")
-    jobs, reference = study_jobs(params, study)
+    grid = distill_grid(params, study)
+    jobs, reference = study_jobs(params, study, grid)
     require_inputs(sorted({job.policy.path for job in jobs}), "distill")
 
     seeds = episode_seeds(study.seed, config)
@@ -132,15 +132,11 @@ def main() -> None:
         for group, s in summary[task].items():
             rows.append(f"{task}\t{group}\t{task}/{group}\t{s['mean']:.3f}\t{s['ci_low']:.3f}\t{s['ci_high']:.3f}\t"
                         f"{s['n']}\t{s['ci_unit']}")
-    tsv = OUT / "returns.tsv"
-    tsv.parent.mkdir(parents=True, exist_ok=True)
-    tmp = tsv.with_name(".returns.tsv.tmp")
-    tmp.write_text("\n".join(rows) + "\n")
-    tmp.replace(tsv)
+    with atomic_path(OUT / "returns.tsv") as tmp:
+        tmp.write_text("\n".join(rows) + "\n")
     plotted = {task: {g: s for g, s in summary[task].items() if not g.startswith("cross_")} for task in study.tasks}
     returns_bar_chart(OUT / "returns.png", plotted,
                       f"returns over {config.seeds} eval seeds x {config.episodes} episodes (95% CI)")
-    grid = distill_grid(params, study)
     curves = {}
     for loss in grid.losses:
         for pairing in grid.pairings:
