@@ -46,6 +46,7 @@ class DistillConfig:
     q_reduction: str = "min"  # Q loss: reduce the teacher's critic ensemble by min or mean
     state_source: str = "offline"  # offline: the task's dataset; online: states the teacher visits
     num_states: int = 0  # states per task; 0 = the whole offline dataset (online: must be > 0)
+    probe_states: int = 256  # states per task for the per-state tau curve (thesis 6.3.1, Fig. 6.4b); 0 = off
 
     def __post_init__(self) -> None:
         require(self.loss in LOSSES, "loss", f"one of {LOSSES}", self.loss)
@@ -54,6 +55,8 @@ class DistillConfig:
         require(self.learning_rate > 0, "learning_rate", "a positive number", self.learning_rate)
         require(self.lr_schedule in LR_SCHEDULES, "lr_schedule", f"one of {LR_SCHEDULES}", self.lr_schedule)
         require(self.batch_size >= 1, "batch_size", "a positive integer", self.batch_size)
+        require(self.probe_states >= 0, "probe_states", "a non-negative integer (0 = no tau curve)",
+                self.probe_states)
         require(self.num_states >= 0, "num_states", "a non-negative integer (0 = the whole dataset)",
                 self.num_states)
         require(self.state_source == "offline" or self.num_states > 0, "num_states",

@@ -25,6 +25,7 @@ from mop_core.distill.student import Student
 from mop_core.envs import ACT_DIM, OBS_DIM
 from mop_core.rollout import episode_returns
 from mop_core.runtime import derive_seeds
+from mop_core.structure import per_state_tau_by_layer
 from mop_core.tasks import check_task_list
 from mop_core.teachers import Teacher, load_teacher
 from mop_core.training import RunPaths, TrainSchedule, returns_summary, run_fingerprint, train_loop
@@ -79,6 +80,19 @@ def build_states(sources: StudentSources, teachers: Sequence[Teacher], config: D
     return result
 
 
+def probe_states(targets: Sequence[TaskStates], per_task: int, seed: int) -> list[torch.Tensor]:
+    """A fixed random subset (``per_task`` states, without replacement) of each task's distillation
+    states, on which the per-state tau curve is measured during training; [] when ``per_task`` is 0."""
+    if per_task == 0:
+        return []
+    generator = torch.Generator().manual_seed(seed)
+    subsets = []
+    for target in targets:
+        index = torch.randperm(len(target.states), generator=generator)[:per_task]
+        subsets.append(target.states[index.to(target.states.device)])
+    return subsets
+
+
 def student_policy(student: Student, task_index: int, device: torch.device) -> Callable[[np.ndarray], np.ndarray]:
     """A numpy policy of the student for one task id (Gaussian students act with their mean)."""
     @torch.no_grad()
@@ -99,12 +113,14 @@ def distill_student(sources: StudentSources, config: DistillConfig, schedule: Tr
     teachers = load_teachers(sources, config.loss)
     levels = [t.level for t in teachers]
     seeds = derive_seeds([study_seed, "distill", *sources.tasks, *levels, config.loss, seed],
-                         ("agent", "states", "eval", "final_eval"))
+                         ("agent", "states", "eval", "final_eval", "probe"))
     targets = build_states(sources, teachers, config, episode_length, seeds["states"], schedule.rollout_envs, device)
     critics = [t.critic for t in teachers] if config.loss == "q" else None
     distiller = Distiller(config, targets, OBS_DIM, ACT_DIM, seeds["agent"], critics, device, schedule.steps)
     student = distiller.student
     policies = [student_policy(student, i, device) for i in range(len(sources.tasks))]
+    probes = probe_states(targets, config.probe_states, seeds["probe"]) if len(targets) > 1 else []
+    tau_at_init = per_state_tau_by_layer(student, probes) if probes else []
 
     def evaluate(eval_seeds: list[int]) -> dict[str, float]:
         row = {}
@@ -112,6 +128,8 @@ def distill_student(sources: StudentSources, config: DistillConfig, schedule: Tr
             stats = returns_summary(episode_returns(policy, task, eval_seeds, episode_length, schedule.rollout_envs))
             row |= {f"{key}_{task}": value for key, value in stats.items()}
         row["return_mean"] = float(np.mean([row[f"return_mean_{task}"] for task in sources.tasks]))
+        if probes:
+            row |= {f"per_state_tau_layer{k + 1}": tau for k, tau in enumerate(per_state_tau_by_layer(student, probes))}
         return row
 
     fingerprint = run_fingerprint({"tasks": sources.tasks, "config": to_dict(config), "schedule": to_dict(schedule),
@@ -125,6 +143,11 @@ def distill_student(sources: StudentSources, config: DistillConfig, schedule: Tr
                      "gradient_steps": schedule.steps, "train_seconds": round(seconds, 1),
                      "steps_per_second": round(schedule.steps / max(seconds, 1e-9), 1),
                      "resumed_from_step": resumed_from}
+    if probes:
+        layers = range(1, len(tau_at_init) + 1)
+        metrics["per_state_tau"] = {"probe_states_per_task": len(probes[0]),
+                                    "at_init": {f"layer{k}": tau for k, tau in zip(layers, tau_at_init)},
+                                    "final": {f"layer{k}": float(curve[-1][f"per_state_tau_layer{k}"]) for k in layers}}
     for task, policy, teacher in zip(sources.tasks, policies, teachers):
         final = episode_returns(policy, task, final_seeds, episode_length, schedule.rollout_envs)
         teacher_return = float(teacher.metrics.get("return_mean", float("nan")))
