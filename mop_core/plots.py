@@ -13,6 +13,14 @@ import matplotlib.pyplot as plt  # noqa: E402
 from mop_core.data.hdf5 import atomic_path  # noqa: E402
 
 
+def _save(fig, path: str | os.PathLike) -> None:
+    """Lay out and write a figure as PNG, atomically; close it."""
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+
+
 def returns_bar_chart(path: str | os.PathLike, summary: Mapping[str, Mapping[str, Mapping]], title: str) -> None:
     """One panel per task, one bar per policy group: mean return with its 95% CI as an error bar.
 
@@ -35,10 +43,7 @@ def returns_bar_chart(path: str | os.PathLike, summary: Mapping[str, Mapping[str
         ax.set_xlabel("episode return (mean, 95% CI)")
         ax.set_title(task)
     fig.suptitle(title)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    _save(fig, path)
 
 
 def learning_curves(path: str | os.PathLike, curves: Mapping[str, list[dict]], tasks: list[str], title: str) -> None:
@@ -55,10 +60,7 @@ def learning_curves(path: str | os.PathLike, curves: Mapping[str, list[dict]], t
         ax.set_title(task)
         ax.legend(fontsize=7)
     fig.suptitle(title)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    _save(fig, path)
 
 
 def read_curve(path: str | os.PathLike) -> list[dict[str, str]]:
@@ -67,3 +69,70 @@ def read_curve(path: str | os.PathLike) -> list[dict[str, str]]:
         header, *lines = f.read().splitlines()
     keys = header.split("\t")
     return [dict(zip(keys, line.split("\t"))) for line in lines]
+
+
+def sorted_activations(path: str | os.PathLike, mean_activations: Mapping[str, list[list[float]]], title: str) -> None:
+    """Thesis Figure 6.3b: one panel per hidden layer; neurons sorted by the first task's mean
+    activation (ascending), every other task's mean activation drawn in the same neuron order.
+    An increasing trend in another task's curve means the tasks rank their neurons alike."""
+    tasks = list(mean_activations)
+    layers = len(mean_activations[tasks[0]])
+    fig, axes = plt.subplots(1, layers, figsize=(5 * layers, 3.5), squeeze=False)
+    for layer, ax in enumerate(axes[0]):
+        reference = mean_activations[tasks[0]][layer]
+        order = sorted(range(len(reference)), key=reference.__getitem__)
+        for task in tasks:
+            values = mean_activations[task][layer]
+            ax.plot(range(len(order)), [values[k] for k in order], label=task, linewidth=1)
+        ax.set_xlabel(f"neuron (sorted by {tasks[0]}'s mean activation)")
+        ax.set_ylabel("mean activation")
+        ax.set_title(f"hidden layer {layer + 1}")
+        ax.legend(fontsize=8)
+    fig.suptitle(title)
+    _save(fig, path)
+
+
+def metric_curves(path: str | os.PathLike, curves: Mapping[str, list[dict]], keys: list[str],
+                  references: Mapping[str, list[float]] | None, ylabel: str, title: str) -> None:
+    """One panel per curve column in ``keys`` (e.g. per-state tau of each layer) against ``step``;
+    ``references[name][k]`` (e.g. the value at initialisation) is drawn as that run's dotted line."""
+    fig, axes = plt.subplots(1, len(keys), figsize=(5 * len(keys), 3.5), squeeze=False)
+    for k, (ax, key) in enumerate(zip(axes[0], keys)):
+        for name, rows in curves.items():
+            points = [(float(r["step"]), float(r[key])) for r in rows if key in r]
+            if not points:
+                continue
+            line, = ax.plot(*zip(*points), marker="o", markersize=3, label=name)
+            if references and name in references and k < len(references[name]):
+                ax.axhline(references[name][k], color=line.get_color(), linestyle=":", linewidth=1)
+        ax.set_xlabel("gradient step")
+        ax.set_ylabel(ylabel)
+        ax.set_title(key)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7)
+    fig.suptitle(title)
+    _save(fig, path)
+
+
+def band_curves(path: str | os.PathLike, panels: Mapping[str, Mapping[str, Mapping[str, list]]],
+                references: Mapping[str, Mapping[str, float]], ylabel: str, title: str) -> None:
+    """Learning curves as the thesis draws them (Figures 5.1, 5.3, 5.4): one panel per key of
+    ``panels``; per label a line ``mean`` over ``step`` with a shaded ``ci_low``..``ci_high`` band
+    where the series has one (several seeds); ``references[panel][label]`` as dashed lines."""
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 3.8), squeeze=False)
+    for ax, (panel, series) in zip(axes[0], panels.items()):
+        for label, s in series.items():
+            line, = ax.plot(s["step"], s["mean"], marker="o", markersize=3, label=label)
+            if s.get("ci_low") is not None:
+                ax.fill_between(s["step"], s["ci_low"], s["ci_high"], color=line.get_color(), alpha=0.2)
+        for label, value in references.get(panel, {}).items():
+            ax.axhline(value, linestyle="--", linewidth=1, color="grey")
+            ax.annotate(label, (0.01, value), xycoords=("axes fraction", "data"), fontsize=7, color="grey",
+                        va="bottom")
+        ax.set_xlabel("gradient step")
+        ax.set_ylabel(ylabel)
+        ax.set_title(panel)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7)
+    fig.suptitle(title)
+    _save(fig, path)

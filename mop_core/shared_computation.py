@@ -1,0 +1,159 @@
+"""Shared computation of a trained student across its task ids (thesis 6.2, Table 6.1, Figure 6.3).
+
+1. :func:`visited_states`: the student acts online on each task (``episodes`` episodes, the thesis
+   used 1000); its visited observations form ``D_i^S``.
+2. :func:`measure_student`: with the post-ReLU activations of every hidden layer,
+   - *per state*: for each pair of tasks (i, j) and each state ``s ~ D_i^S u D_j^S``, Kendall's
+     tau-b between the layer's activations of ``pi^S(s, i)`` and ``pi^S(s, j)``; mean and
+     standard deviation over the states;
+   - *average*: per task, the mean activation of each neuron over its own states under its own
+     id, ``a_i = E_{s~D_i^S}[h(s, i)]``; tau-b between ``a_i`` and ``a_j``;
+   - *linear CKA* (the thesis's suggested future work, 6.2.4) between the activation matrices
+     ``H_i = h(S, i)`` and ``H_j = h(S, j)`` over the same states ``S = D_i^S u D_j^S``.
+   ReLU zeros tie neurons; tau-b (not tau-a) accounts for the ties. ``zero_fraction`` records how
+   many activations are exactly zero, i.e. how much tie correction there is.
+3. :func:`summarise_students`: a group of students trained with different seeds -> mean and
+   standard deviation over seeds of every figure (Table 6.1 rows).
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from mop_core.config import require
+from mop_core.rollout import collect_episodes
+from mop_core.runtime import derive_seeds, set_threads
+from mop_core.structure import average_comparison, hidden_activations, linear_cka, per_state_comparison
+
+TIES_NOTE = ("Kendall's tau-b: ReLU outputs are often exactly 0, which ties neurons; tau-b corrects for ties "
+             "(tau_b = (C - D) / sqrt((n0 - n1)(n0 - n2))), so tied neurons count neither for nor against "
+             "agreement. zero_fraction gives the share of zero activations per layer.")
+
+
+@dataclass(frozen=True)
+class SharedComputationConfig:
+    """How many states the measurement sees: ``episodes`` online episodes per task and student."""
+
+    episodes: int = 10  # per task (thesis 6.2.1: 1000)
+    rollout_envs: int = 10  # walkers stepped together in one process
+    workers: int = 2  # rollout processes (one torch thread each)
+
+    def __post_init__(self) -> None:
+        for name in ("episodes", "rollout_envs", "workers"):
+            require(getattr(self, name) >= 1, name, "a positive integer", getattr(self, name))
+
+
+def episode_seeds(study_seed: int, task: str, episodes: int) -> list[int]:
+    """Environment seeds of the measurement rollouts: the same for every student of a task."""
+    base = derive_seeds([study_seed, "shared_computation", task], ("episodes",))["episodes"]
+    return [base + k for k in range(episodes)]
+
+
+def visited_states(student_path: Path, task: str, seeds: Sequence[int], episode_length: int,
+                   rollout_envs: int) -> tuple[np.ndarray, np.ndarray]:
+    """``D_task^S``: the observations ``[episodes * T, obs]`` (float32) a student visits acting on
+    ``task`` under its id, and the episodes' returns."""
+    from mop_core.distill.run import load_student
+
+    policy = load_student(student_path).policy(task)
+    arrays = collect_episodes(policy, task, seeds, episode_length, rollout_envs)
+    returns = arrays["rewards"].reshape(len(seeds), episode_length).sum(1)
+    return arrays["observations"].astype(np.float32), returns
+
+
+def _visited_worker(args: tuple) -> tuple[np.ndarray, np.ndarray]:
+    set_threads(1)
+    return visited_states(*args)
+
+
+def collect_visited(jobs: Sequence[tuple[Path, str]], study_seed: int, episode_length: int,
+                    config: SharedComputationConfig, progress: bool = False) -> list[tuple[np.ndarray, np.ndarray]]:
+    """:func:`visited_states` of every (student checkpoint, task) job, ``config.workers`` processes."""
+    args = [(path, task, episode_seeds(study_seed, task, config.episodes), episode_length, config.rollout_envs)
+            for path, task in jobs]
+    bar = tqdm(total=len(args), desc="shared_computation rollouts", unit="job", disable=not progress)
+    results = []
+    if config.workers == 1 or len(args) == 1:
+        for a in args:
+            results.append(visited_states(*a))
+            bar.update(1)
+    else:
+        with ProcessPoolExecutor(max_workers=min(config.workers, len(args), os.cpu_count() or 1)) as pool:
+            for result in pool.map(_visited_worker, args):
+                results.append(result)
+                bar.update(1)
+    bar.close()
+    return results
+
+
+def layer_key(index: int) -> str:
+    """``layer1``, ``layer2``, ...: hidden layers as JSON keys (dvc metrics shows dicts, not lists)."""
+    return f"layer{index + 1}"
+
+
+def _stats(values: torch.Tensor) -> dict:
+    finite = values[~torch.isnan(values)]
+    return {"mean": float(finite.mean()) if len(finite) else float("nan"),
+            "sd": float(finite.std(unbiased=False)) if len(finite) else float("nan"),
+            "states": int(len(values)), "undefined": int(len(values) - len(finite))}
+
+
+@torch.no_grad()
+def measure_student(student, tasks: Sequence[str], states: Sequence[torch.Tensor]) -> dict:
+    """Per-state, average and CKA comparisons of one student (module docstring); ``states[i]`` were
+    visited acting as ``tasks[i]``. Per pair ``"<task_i>-<task_j>"`` and layer (1-based order)."""
+    if len(tasks) != len(states) or len(tasks) < 2:
+        raise ValueError(f"states: expected one state batch per task for >= 2 tasks, got {len(states)} for {tasks}")
+    own = [hidden_activations(student, obs, i) for i, obs in enumerate(states)]  # own[i][layer]
+    per_state = [per_state_comparison(student, obs, i) for i, obs in enumerate(states)]  # [i][layer][j]
+    averages = average_comparison([[acts.mean(0) for acts in layers] for layers in own])
+    layers = len(own[0])
+    pairs = {}
+    for i, j in itertools.combinations(range(len(tasks)), 2):
+        rows = {}
+        for layer in range(layers):
+            taus = torch.cat([per_state[i][layer][j], per_state[j][layer][i]])  # s ~ D_i u D_j
+            under_i = torch.cat([own[i][layer], hidden_activations(student, states[j], i)[layer]])
+            under_j = torch.cat([hidden_activations(student, states[i], j)[layer], own[j][layer]])
+            rows[layer_key(layer)] = {"per_state_tau": _stats(taus), "average_tau": float(averages[layer][i, j]),
+                                      "linear_cka": linear_cka(under_i, under_j)}
+        pairs[f"{tasks[i]}-{tasks[j]}"] = rows
+    return {
+        "tasks": list(tasks),
+        "states_per_task": {task: int(len(obs)) for task, obs in zip(tasks, states)},
+        "pairs": pairs,
+        "zero_fraction": {task: {layer_key(k): float((acts == 0).double().mean()) for k, acts in enumerate(own[i])}
+                          for i, task in enumerate(tasks)},
+        "mean_activations": {task: [acts.mean(0).tolist() for acts in own[i]] for i, task in enumerate(tasks)},
+    }
+
+
+def summarise_students(records: Sequence[dict]) -> dict:
+    """Table 6.1 row(s) of a group of students (different training seeds): per pair and layer, the
+    seed-mean of the per-state mean tau, its states' sd, the average tau and CKA, with the sd over
+    seeds (0 for one seed)."""
+    summary: dict = {"students": len(records), "pairs": {}}
+    for pair, layers in records[0]["pairs"].items():
+        out = {}
+        for layer in layers:
+            entries = [record["pairs"][pair][layer] for record in records]
+            values = {"per_state_tau_mean": [e["per_state_tau"]["mean"] for e in entries],
+                      "per_state_tau_sd": [e["per_state_tau"]["sd"] for e in entries],
+                      "average_tau": [e["average_tau"] for e in entries],
+                      "linear_cka": [e["linear_cka"] for e in entries]}
+            row: dict = {}
+            for key, vals in values.items():
+                row[key] = float(np.mean(vals))
+                row[f"{key}_seed_sd"] = float(np.std(vals))
+            out[layer] = row
+        summary["pairs"][pair] = out
+    return summary
