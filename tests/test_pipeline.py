@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -79,8 +80,33 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
     assert "distill@kl-medium-0" in stages and "eval" in stages
     plots = _run(["dvc", "plots", "show", "--json"], repo).stdout
     assert "results/eval/returns.tsv" in plots and "results/students/curves" in plots
+    assert "per_state_tau" in plots
+    shared = json.loads((repo / "results" / "shared_computation" / "metrics.json").read_text())
+    assert shared["groups"] == shown[""]["data"]["results/shared_computation/metrics.json"]["data"]["groups"]
+    for group in ("mse_medium", "q_medium", "kl_medium"):
+        layers = shared["groups"][group]["pairs"]["stand-walk"]
+        assert list(layers) == ["layer1", "layer2"] and all(-1 <= row["average_tau"] <= 1 for row in layers.values())
+    assert "tau-b" in shared["note"]
+    curve = (repo / "results" / "students" / "curves" / "mse-medium-0.tsv").read_text().splitlines()
+    assert "per_state_tau_layer1" in curve[0].split("\t")
+    _check_report(repo)
     status = _run(["dvc", "status"], repo).stdout
     assert "up to date" in status.lower()
+
+
+def _check_report(repo: Path) -> None:
+    """The report has every thesis section, and every figure it links is a PNG file."""
+    report = (repo / "results" / "report.md").read_text()
+    for title in ("Table 4.1", "Figure 5.1", "Figure 5.3", "Figure 5.4", "Appendix E", "Table 6.1", "Figure 6.3",
+                  "Table 6.3"):
+        assert title in report
+    assert report.index("Table 4.1") < report.index("Figure 5.1") < report.index("Table 6.1") < report.index(
+        "Table 6.3")
+    links = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", report)
+    assert len(links) >= 7  # teachers, multitask, losses, 3 sorted-activation figures, tau curve, returns
+    for link in links:
+        assert (repo / "results" / link).read_bytes()[:4] == b"\x89PNG", link
+    assert "Not part of this run" not in report  # the tiny study runs every stage
 
 
 def _commit(repo: Path, message: str) -> None:
@@ -118,11 +144,13 @@ def test_each_parameter_section_invalidates_only_its_stages(repo):
     assert {"train_teachers@walk-medium-deterministic-0", "train_multitask@medium-0"} <= teachers
     assert not {"collect", "relabel", "eval"} & teachers and not any(s.startswith("distill") for s in teachers)
     assert _invalidated_by(repo, "eval", "episodes", 2) == {"eval"}
+    assert _invalidated_by(repo, "shared_computation", "episodes", 2) == {"shared_computation"}
 
 
-def test_exp_run_of_distill_param_reruns_only_distill_and_eval(repo):
+def test_exp_run_of_distill_param_reruns_only_distill_and_what_reads_students(repo):
     out = _run(["dvc", "exp", "run", "-S", "distill.learning_rate=0.002"], repo).stdout
-    assert _stages_run(out) == {"distill@mse-medium-0", "distill@q-medium-0", "distill@kl-medium-0", "eval"}
+    assert _stages_run(out) == {"distill@mse-medium-0", "distill@q-medium-0", "distill@kl-medium-0", "eval",
+                                "shared_computation", "report"}
     metrics = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
     assert "student_mse_medium" in metrics["stand"]
 
