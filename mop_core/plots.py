@@ -21,6 +21,15 @@ def _save(fig, path: str | os.PathLike) -> None:
     plt.close(fig)
 
 
+def _label(ax, xlabel: str, ylabel: str, title: str) -> None:
+    """Axis labels, title, and a legend when the panel has labelled artists."""
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7)
+
+
 def returns_bar_chart(path: str | os.PathLike, summary: Mapping[str, Mapping[str, Mapping]], title: str) -> None:
     """One panel per task, one bar per policy group: mean return with its 95% CI as an error bar.
 
@@ -55,10 +64,7 @@ def learning_curves(path: str | os.PathLike, curves: Mapping[str, list[dict]], t
             points = [(float(r["step"]), float(r[key])) for r in rows if key in r]
             if points:
                 ax.plot(*zip(*points), marker="o", markersize=3, label=name)
-        ax.set_xlabel("gradient step")
-        ax.set_ylabel("episode return")
-        ax.set_title(task)
-        ax.legend(fontsize=7)
+        _label(ax, "gradient step", "episode return", task)
     fig.suptitle(title)
     _save(fig, path)
 
@@ -105,11 +111,7 @@ def metric_curves(path: str | os.PathLike, curves: Mapping[str, list[dict]], key
             line, = ax.plot(*zip(*points), marker="o", markersize=3, label=name)
             if references and name in references and k < len(references[name]):
                 ax.axhline(references[name][k], color=line.get_color(), linestyle=":", linewidth=1)
-        ax.set_xlabel("gradient step")
-        ax.set_ylabel(ylabel)
-        ax.set_title(key)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=7)
+        _label(ax, "gradient step", ylabel, key)
     fig.suptitle(title)
     _save(fig, path)
 
@@ -129,10 +131,6 @@ def band_curves(path: str | os.PathLike, panels: Mapping[str, Mapping[str, Mappi
             ax.axhline(value, linestyle="--", linewidth=1, color="grey")
             ax.annotate(label, (0.01, value), xycoords=("axes fraction", "data"), fontsize=7, color="grey",
                         va="bottom")
-        ax.set_xlabel("gradient step")
-        ax.set_ylabel(ylabel)
-        ax.set_title(panel)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=7)
+        _label(ax, "gradient step", ylabel, panel)
     fig.suptitle(title)
     _save(fig, path)
