@@ -214,10 +214,31 @@ def test_distill_run_writes_student_metrics_and_curve(tiny_teachers, tmp_path, l
     header, *rows = (tmp_path / "curve.tsv").read_text().splitlines()
     assert {"return_mean_stand", "return_mean_walk", "loss_stand", "loss_walk"} <= set(header.split("\t"))
     assert len(rows) == 2 and not (tmp_path / "resume.pt").exists()
+    # the per-state tau curve (thesis 6.3.1): one column per hidden layer, a tau in [-1, 1] at every evaluation
+    columns = header.split("\t")
+    for layer in (1, 2):
+        taus = [float(row.split("\t")[columns.index(f"per_state_tau_layer{layer}")]) for row in rows]
+        assert all(-1 <= tau <= 1 for tau in taus)
+        assert metrics["per_state_tau"]["final"][f"layer{layer}"] == taus[-1]
+        assert -1 <= metrics["per_state_tau"]["at_init"][f"layer{layer}"] <= 1
+    assert metrics["per_state_tau"]["probe_states_per_task"] == config.probe_states
     loaded = load_student(tmp_path / "student.pt")
     assert loaded.tasks == ["stand", "walk"] and loaded.config == config
     assert loaded.checkpoint["states"][0]["source"] == source
     assert loaded.policy("walk")(np.zeros((3, 24))).shape == (3, 6)
+
+
+def test_probe_states_zero_logs_no_tau_and_leaves_training_unchanged(tiny_teachers, tmp_path):
+    sources = _sources(tiny_teachers, "deterministic")
+    with_probe = DistillConfig(student=TINY, learning_rate=1e-3, batch_size=16)
+    without = DistillConfig(student=TINY, learning_rate=1e-3, batch_size=16, probe_states=0)
+    a = distill_student(sources, with_probe, SCHEDULE, 50, 0, 0, _paths(tmp_path / "a"))
+    b = distill_student(sources, without, SCHEDULE, 50, 0, 0, _paths(tmp_path / "b"))
+    assert "per_state_tau" in a and "per_state_tau" not in b
+    assert "per_state_tau_layer1" not in (tmp_path / "b" / "curve.tsv").read_text()
+    state_a = load_student(tmp_path / "a" / "student.pt").student.state_dict()
+    state_b = load_student(tmp_path / "b" / "student.pt").student.state_dict()
+    assert all(torch.equal(state_a[k], state_b[k]) for k in state_a)  # measuring does not touch training
 
 
 def test_distill_rejects_a_teacher_of_the_wrong_kind_or_task(tiny_teachers, tmp_path):

@@ -15,6 +15,7 @@ from mop_core.structure import (
     kendall_tau_b,
     linear_cka,
     per_state_comparison,
+    per_state_tau_by_layer,
 )
 
 
@@ -50,6 +51,17 @@ def test_cka_is_invariant_to_orthogonal_transforms_and_isotropic_scaling():
     assert linear_cka(3.7 * x, y) == pytest.approx(base, rel=1e-10)
     assert linear_cka(x, x) == pytest.approx(1.0)
     assert linear_cka(x, torch.randn(200, 32, generator=gen, dtype=torch.float64)) < 0.3
+
+
+def test_tau_b_of_float32_activations_equals_float64_and_cka_chunks_equal_one_pass():
+    gen = torch.Generator().manual_seed(1)
+    x = torch.relu(torch.randn(40, 30, generator=gen))
+    y = torch.relu(x + 0.3 * torch.randn(40, 30, generator=gen))
+    torch.testing.assert_close(kendall_tau_b(x, y), kendall_tau_b(x.double(), y.double()), rtol=1e-12, atol=0)
+    xc, yc = x.double() - x.double().mean(0), y.double() - y.double().mean(0)  # the textbook formula
+    direct = float((yc.T @ xc).pow(2).sum() / ((xc.T @ xc).norm() * (yc.T @ yc).norm()))
+    assert linear_cka(x, y, chunk=7) == pytest.approx(direct, rel=1e-9)
+    assert linear_cka(x, y) == pytest.approx(direct, rel=1e-9)
 
 
 def test_hidden_activations_are_the_post_relu_outputs_of_every_hidden_layer():
@@ -88,6 +100,8 @@ def test_per_state_and_average_paths_on_a_network_with_known_overlap():
     expected = kendall_tau_b(torch.relu(b0), torch.relu(b1)).item()
     assert expected < -0.5
     torch.testing.assert_close(layer[1], torch.full((10,), expected, dtype=torch.float64))
+    assert per_state_tau_by_layer(shared, [obs, obs]) == pytest.approx([1.0])
+    assert per_state_tau_by_layer(split, [obs, obs[:4]]) == pytest.approx([expected])
     means = [[hidden_activations(split, obs, t)[0].mean(0)] for t in (0, 1)]
     (tau,) = average_comparison(means)
     assert tau[0, 0] == 1 and tau[0, 1] == tau[1, 0] == pytest.approx(expected)

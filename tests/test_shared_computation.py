@@ -1,0 +1,112 @@
+"""The shared-computation measurement of a student (thesis 6.2): visited states are the student's own
+rollouts, every task pair is compared, the per-state / average / CKA numbers are the ones the
+definitions give, and a group's summary is the mean over its students."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from mop_core.artifacts import save_checkpoint
+from mop_core.config import to_dict
+from mop_core.distill.distiller import DistillConfig
+from mop_core.distill.run import STUDENT_KIND, load_student
+from mop_core.distill.student import Student, StudentConfig
+from mop_core.rollout import episode_returns
+from mop_core.shared_computation import (
+    SharedComputationConfig,
+    collect_visited,
+    episode_seeds,
+    measure_student,
+    summarise_students,
+    visited_states,
+)
+from mop_core.structure import hidden_activations, kendall_tau_b, linear_cka
+
+
+def _student(num_tasks: int, seed: int = 0, task_scale: float = 1.0) -> Student:
+    torch.manual_seed(seed)
+    student = Student(StudentConfig(hidden_sizes=(12, 8)), 24, 6, num_tasks)
+    with torch.no_grad():
+        student.actor.net[0].weight[:, 24:] *= task_scale  # the task-id inputs' weights
+    return student.eval()
+
+
+def _save(student: Student, path, tasks: list[str]):
+    config = DistillConfig(student=student.config)
+    save_checkpoint(path, {"kind": STUDENT_KIND, "tasks": tasks, "distill_config": to_dict(config), "obs_dim": 24,
+                           "act_dim": 6, "student": student.state_dict()})
+    return path
+
+
+def test_a_student_that_ignores_its_task_id_shares_everything():
+    student = _student(2, task_scale=0.0)
+    states = [torch.randn(30, 24), torch.randn(20, 24)]
+    record = measure_student(student, ["stand", "walk"], states)
+    for layer in ("layer1", "layer2"):
+        row = record["pairs"]["stand-walk"][layer]
+        assert row["per_state_tau"]["mean"] == pytest.approx(1.0) and row["per_state_tau"]["sd"] == pytest.approx(0)
+        assert row["per_state_tau"]["states"] == 50  # s ~ D_stand u D_walk
+        assert row["linear_cka"] == pytest.approx(1.0)
+    same = measure_student(student, ["stand", "walk"], [states[0], states[0]])
+    assert same["pairs"]["stand-walk"]["layer2"]["average_tau"] == pytest.approx(1.0)
+
+
+def test_every_pair_of_three_tasks_follows_the_definitions():
+    student = _student(3, task_scale=20.0)  # a strong task id: activations differ across ids
+    tasks = ["stand", "walk", "run"]
+    states = [torch.randn(15, 24), torch.randn(10, 24), torch.randn(12, 24)]
+    record = measure_student(student, tasks, states)
+    assert set(record["pairs"]) == {"stand-walk", "stand-run", "walk-run"}
+    i, j = 0, 2  # stand-run, layer 2, from the definitions directly
+    pooled = torch.cat([states[i], states[j]])
+    under_i, under_j = hidden_activations(student, pooled, i)[1], hidden_activations(student, pooled, j)[1]
+    taus = kendall_tau_b(under_i, under_j)
+    row = record["pairs"]["stand-run"]["layer2"]
+    assert row["per_state_tau"]["mean"] == pytest.approx(float(taus.nanmean()))
+    assert row["per_state_tau"]["undefined"] == int(taus.isnan().sum())
+    assert row["linear_cka"] == pytest.approx(linear_cka(under_i, under_j))
+    mean_i = hidden_activations(student, states[i], i)[1].mean(0)
+    mean_j = hidden_activations(student, states[j], j)[1].mean(0)
+    assert row["average_tau"] == pytest.approx(float(kendall_tau_b(mean_i, mean_j)))
+    assert row["per_state_tau"]["mean"] < 0.99  # the task id changes the ranking
+    zero = record["zero_fraction"]["walk"]["layer1"]
+    assert zero == pytest.approx(float((hidden_activations(student, states[1], 1)[0] == 0).double().mean()))
+
+
+def test_group_summary_is_the_mean_and_sd_over_students():
+    states = [torch.randn(10, 24), torch.randn(10, 24)]
+    records = [measure_student(_student(2, seed, 5.0), ["stand", "walk"], states) for seed in (0, 1)]
+    summary = summarise_students(records)
+    assert summary["students"] == 2
+    row = summary["pairs"]["stand-walk"]["layer1"]
+    values = [r["pairs"]["stand-walk"]["layer1"]["average_tau"] for r in records]
+    assert row["average_tau"] == pytest.approx(np.mean(values))
+    assert row["average_tau_seed_sd"] == pytest.approx(np.std(values))
+
+
+def test_visited_states_are_the_students_own_rollouts_in_any_number_of_processes(tmp_path):
+    student = _student(2, task_scale=3.0)
+    path = _save(student, tmp_path / "student.pt", ["stand", "walk"])
+    seeds = episode_seeds(0, "walk", 3)
+    assert seeds == episode_seeds(0, "walk", 3) and seeds != episode_seeds(0, "stand", 3)
+    obs, returns = visited_states(path, "walk", seeds, 20, 2)
+    assert obs.shape == (60, 24) and obs.dtype == np.float32
+    expected = episode_returns(load_student(path).policy("walk"), "walk", seeds, 20, 3)
+    np.testing.assert_allclose(returns, expected, rtol=1e-5)  # batch size changes float rounding only
+    jobs = [(path, "stand"), (path, "walk")]
+    config = SharedComputationConfig(episodes=3, rollout_envs=2, workers=1)
+    one = collect_visited(jobs, 0, 20, config)
+    two = collect_visited(jobs, 0, 20, SharedComputationConfig(episodes=3, rollout_envs=2, workers=2))
+    for (obs_a, ret_a), (obs_b, ret_b) in zip(one, two):
+        np.testing.assert_array_equal(obs_a, obs_b)
+        np.testing.assert_array_equal(ret_a, ret_b)
+    np.testing.assert_array_equal(one[1][0], obs)
+
+
+def test_config_errors_name_the_parameter():
+    with pytest.raises(ValueError, match="episodes"):
+        SharedComputationConfig(episodes=0)
+    with pytest.raises(ValueError, match="expected one state batch per task"):
+        measure_student(_student(2), ["stand", "walk"], [torch.randn(3, 24)])
