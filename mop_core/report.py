@@ -294,12 +294,19 @@ def shared_section(results: StudyResults) -> str:
                              f"{fmt(row['average_tau'], 3)} (sd {fmt(row['average_tau_seed_sd'], 3)})",
                              f"{fmt(row['linear_cka'], 3)} (sd {fmt(row['linear_cka_seed_sd'], 3)})",
                              summary["students"]])
+                ref = summary.get("untrained", {}).get("pairs", {}).get(pair, {}).get(layer)
+                if ref:
+                    rows.append([f"{group}, untrained copy", pair, layer.removeprefix("layer"),
+                                 f"{fmt(ref['per_state_tau']['mean'], 3)} +- {fmt(ref['per_state_tau']['sd'], 3)}",
+                                 fmt(ref["average_tau"], 3), fmt(ref["linear_cka"], 3), "-"])
     out += [f"Each student acted online for {shared['episodes_per_task']} episodes per task; its post-ReLU "
             "activations on the visited states are compared across task ids. Per state: Kendall's tau-b "
             "between a state's activations under the two task ids, mean +- sd over states (s ~ D_i u D_j), "
             "averaged over the group's students. Average: tau-b between the tasks' mean activations over their "
             "own states. Linear CKA: the activation matrices under the two ids over the same states (6.2.4's "
-            "proposal). In brackets: sd over the group's students.", "",
+            "proposal). In brackets: sd over the group's students. 'untrained copy' rows: the same measures of "
+            "a freshly initialised network of the same shape on the same states (the group's first student's), "
+            "the level a number should be read against.", "",
             table(["student group", "tasks", "layer", "per-state tau (mean +- sd)", "average tau", "linear CKA",
                    "students"], rows), "", f"Ties: {shared['note']}", ""]
     zero = []

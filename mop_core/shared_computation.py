@@ -14,10 +14,14 @@
    many activations are exactly zero, i.e. how much tie correction there is.
 3. :func:`summarise_students`: a group of students trained with different seeds -> mean and
    standard deviation over seeds of every figure (Table 6.1 rows).
+4. :func:`untrained_like`: the same measures for an untrained network of the student's shape on
+   the same states, the reference a number is read against: with a one-hot task id as 2 of 26
+   inputs, a random network's per-state tau is already high (~0.8 here).
 """
 
 from __future__ import annotations
 
+import copy
 import itertools
 import os
 from concurrent.futures import ProcessPoolExecutor
@@ -135,6 +139,17 @@ def measure_student(student, tasks: Sequence[str], states: Sequence[torch.Tensor
                           for i, task in enumerate(tasks)},
         "mean_activations": {task: [acts.mean(0).tolist() for acts in own[i]] for i, task in enumerate(tasks)},
     }
+
+
+def untrained_like(student, seed: int):
+    """A copy of the student with every layer re-initialised (``torch.manual_seed(seed)`` first), i.e.
+    an untrained network of the same architecture and the same default initialisation."""
+    fresh = copy.deepcopy(student)
+    torch.manual_seed(seed)
+    for module in fresh.modules():
+        if isinstance(module, torch.nn.Linear):
+            module.reset_parameters()
+    return fresh.eval().requires_grad_(False)
 
 
 def summarise_students(records: Sequence[dict]) -> dict:

@@ -5,7 +5,8 @@
 Every student of the distill grid acts online on each of its tasks (``shared_computation.episodes``
 episodes per task; the thesis used 1000); its post-ReLU activations on the visited states are
 compared across task ids: per state (Kendall's tau-b, mean +- sd over states), on task averages
-(tau-b of the mean activations) and by linear CKA (mop_core/shared_computation.py). Writes
+(tau-b of the mean activations) and by linear CKA (mop_core/shared_computation.py); the same
+measures of an untrained copy of each group's first student on its states are the reference. Writes
 - results/shared_computation/metrics.json: Table 6.1 per (loss, pairing) group (mean over the
   group's seeds) and per student (dvc metrics);
 - results/shared_computation/students/<student>.json: everything measured, incl. the mean activations;
@@ -27,13 +28,14 @@ from mop_core.config import from_mapping, require
 from mop_core.data import write_json
 from mop_core.distill.run import load_student
 from mop_core.plots import metric_curves, read_curve, sorted_activations
-from mop_core.runtime import progress_enabled, set_threads
+from mop_core.runtime import derive_seeds, progress_enabled, set_threads
 from mop_core.shared_computation import (
     TIES_NOTE,
     SharedComputationConfig,
     collect_visited,
     measure_student,
     summarise_students,
+    untrained_like,
 )
 
 OUT = RESULTS / "shared_computation"
@@ -55,13 +57,14 @@ def main() -> None:
     paths = {name: run_paths(name, "students") for name in names}
     require_inputs([f for p in paths.values() for f in (p.checkpoint, p.curve, p.metrics)], "distill")
 
+    first_student = {members[0]: group for group, members in groups.items()}
     started = time.perf_counter()
     jobs = [(paths[name].checkpoint, task) for name in names for task in study.tasks]
     visited = collect_visited(jobs, study.seed, study.episode_length, config, progress_enabled(study.progress))
     rollout_seconds = time.perf_counter() - started
     set_threads(threads)
 
-    records = {}
+    records, untrained = {}, {}
     for n, name in enumerate(names):
         loaded = load_student(paths[name].checkpoint)
         mine = visited[n * len(study.tasks):(n + 1) * len(study.tasks)]
@@ -69,6 +72,11 @@ def main() -> None:
         record = measure_student(loaded.student, loaded.tasks, states)
         record["student_return"] = {task: float(returns.mean()) for task, (_, returns) in zip(study.tasks, mine)}
         records[name] = record
+        group = first_student.get(name)
+        if group is not None:  # the reference: an untrained copy on the same states, once per group
+            seed = derive_seeds([study.seed, SECTION, "untrained", group], ("init",))["init"]
+            reference = measure_student(untrained_like(loaded.student, seed), loaded.tasks, states)
+            untrained[group] = {"student_states": name, "pairs": reference["pairs"]}
         write_json(OUT / "students" / f"{name}.json", record)
         sorted_activations(OUT / "figures" / f"{name}.png", record["mean_activations"],
                            f"{name}: mean activation per neuron over {config.episodes} episodes per task")
@@ -80,7 +88,7 @@ def main() -> None:
     metrics = {"note": TIES_NOTE, "episodes_per_task": config.episodes,
                "seconds": round(seconds, 1), "rollout_seconds": round(rollout_seconds, 1),
                "groups": {group: summarise_students([records[name] for name in members])
-                          for group, members in groups.items()},
+                          | {"untrained": untrained[group]} for group, members in groups.items()},
                "students": {name: compact(record) for name, record in records.items()}}
     write_json(OUT / "metrics.json", metrics)
 
@@ -99,9 +107,11 @@ def main() -> None:
     for group, summary in metrics["groups"].items():
         for pair, layers in summary["pairs"].items():
             for layer, row in layers.items():
+                ref = summary["untrained"]["pairs"][pair][layer]
                 print(f"{group:16s} {pair:12s} {layer}: per-state tau {row['per_state_tau_mean']:.3f} "
                       f"+- {row['per_state_tau_sd']:.3f}  average tau {row['average_tau']:.3f}  "
-                      f"linear CKA {row['linear_cka']:.3f}  ({summary['students']} students)")
+                      f"linear CKA {row['linear_cka']:.3f}  ({summary['students']} students; untrained: "
+                      f"{ref['per_state_tau']['mean']:.3f}, {ref['average_tau']:.3f}, {ref['linear_cka']:.3f})")
     print(f"shared_computation: {len(names)} students in {seconds:.0f} s (rollouts {rollout_seconds:.0f} s)")
 
 

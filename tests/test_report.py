@@ -39,7 +39,10 @@ def _full_results() -> StudyResults:
     layer = {"per_state_tau_mean": 0.617, "per_state_tau_sd": 0.139, "average_tau": -0.016,
              "average_tau_seed_sd": 0.007, "linear_cka": 0.996, "linear_cka_seed_sd": 0.0}
     shared = {"note": "tau-b corrects for ties", "episodes_per_task": 10,
-              "groups": {"mse_medium": {"students": 2, "pairs": {"stand-walk": {"layer1": layer}}}},
+              "groups": {"mse_medium": {"students": 2, "pairs": {"stand-walk": {"layer1": layer}},
+                                        "untrained": {"pairs": {"stand-walk": {"layer1": {
+                                            "per_state_tau": {"mean": 0.811, "sd": 0.05}, "average_tau": 0.2,
+                                            "linear_cka": 0.999}}}}}},
               "students": {"mse-medium-0": {"zero_fraction": {"stand": {"layer1": 0.53}, "walk": {"layer1": 0.5}}}}}
     return StudyResults(
         tasks=TASKS, levels=["medium"], settings={"summary": "tiny", "snapshot_eval_episodes": 10},
@@ -55,6 +58,7 @@ def test_report_shows_the_runs_numbers_in_thesis_order_and_draws_the_figures_it_
     markdown = render_report(_full_results(), tmp_path / "report", "report/")
     assert "404.6 [394.6, 414.6]" in markdown  # teacher eval with its CI, from the eval metrics
     assert "0.617 +- 0.139" in markdown and "0.996" in markdown  # Table 6.1 row
+    assert "| mse_medium, untrained copy | stand-walk | 1 | 0.811 +- 0.050 | 0.200 | 0.999 | - |" in markdown
     assert "| medium | walk teacher | 286.6 | 205.1 |" in markdown  # Table 6.3 row
     assert "the walk teacher (205.1)" in markdown
     assert "1.05" in markdown  # student / teacher = 426.1 / 404.55

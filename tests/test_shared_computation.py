@@ -20,6 +20,7 @@ from mop_core.shared_computation import (
     episode_seeds,
     measure_student,
     summarise_students,
+    untrained_like,
     visited_states,
 )
 from mop_core.structure import hidden_activations, kendall_tau_b, linear_cka
@@ -84,6 +85,17 @@ def test_group_summary_is_the_mean_and_sd_over_students():
     values = [r["pairs"]["stand-walk"]["layer1"]["average_tau"] for r in records]
     assert row["average_tau"] == pytest.approx(np.mean(values))
     assert row["average_tau_seed_sd"] == pytest.approx(np.std(values))
+
+
+def test_untrained_copy_has_the_same_shape_fresh_weights_and_leaves_the_student_alone():
+    student = _student(2, seed=3, task_scale=5.0)
+    before = {k: v.clone() for k, v in student.state_dict().items()}
+    fresh = untrained_like(student, seed=7)
+    again = untrained_like(student, seed=7)
+    assert all(torch.equal(before[k], v) for k, v in student.state_dict().items())
+    assert {k: v.shape for k, v in fresh.state_dict().items()} == {k: v.shape for k, v in before.items()}
+    assert not torch.equal(fresh.state_dict()["actor.net.0.weight"], before["actor.net.0.weight"])
+    assert all(torch.equal(v, again.state_dict()[k]) for k, v in fresh.state_dict().items())
 
 
 def test_visited_states_are_the_students_own_rollouts_in_any_number_of_processes(tmp_path):
