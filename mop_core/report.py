@@ -286,7 +286,10 @@ def shared_section(results: StudyResults) -> str:
         return "\n".join(out + [not_run("the shared_computation stage", "Run `dvc repro shared_computation`."), ""])
     shared = results.shared
     rows = []
-    for group, summary in shared["groups"].items():
+    study_order = list(dict.fromkeys(f"{r.key['loss']}_{r.key['pairing']}" for r in results.students))
+    ordered = sorted(shared["groups"], key=lambda g: study_order.index(g) if g in study_order else len(study_order))
+    for group in ordered:  # the study's loss order (mse, q, kl), not the JSON file's sorted keys
+        summary = shared["groups"][group]
         for pair, layers in summary["pairs"].items():
             for layer, row in layers.items():
                 rows.append([group, pair, layer.removeprefix("layer"),
