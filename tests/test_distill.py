@@ -221,7 +221,7 @@ def test_distill_run_writes_student_metrics_and_curve(tiny_teachers, tmp_path, l
         assert all(-1 <= tau <= 1 for tau in taus)
         assert metrics["per_state_tau"]["final"][f"layer{layer}"] == taus[-1]
         assert -1 <= metrics["per_state_tau"]["at_init"][f"layer{layer}"] <= 1
-    assert metrics["per_state_tau"]["probe_states_per_task"] == config.probe_states
+    assert 0 < metrics["per_state_tau"]["probe_states_per_task"] <= config.probe_states  # all, if fewer
     loaded = load_student(tmp_path / "student.pt")
     assert loaded.tasks == ["stand", "walk"] and loaded.config == config
     assert loaded.checkpoint["states"][0]["source"] == source

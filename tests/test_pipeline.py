@@ -152,7 +152,7 @@ def test_each_parameter_section_invalidates_only_its_stages(repo):
     teachers = _invalidated_by(repo, "train_teachers", "pbrl.learning_rate", 0.002)
     assert {"train_teachers@walk-medium-deterministic-0", "train_multitask@medium-0"} <= teachers
     assert not {"collect", "relabel", "eval"} & teachers and not any(s.startswith("distill") for s in teachers)
-    assert _invalidated_by(repo, "eval", "episodes", 2) == {"eval"}
+    assert _invalidated_by(repo, "eval", "episodes", 2) == {"eval", "report"}  # the report names the budget
     assert _invalidated_by(repo, "shared_computation", "episodes", 2) == {"shared_computation"}
 
 
