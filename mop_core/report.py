@@ -69,6 +69,16 @@ def ci_caption(entries: Sequence[Mapping]) -> str:
     return ", ".join(f"{n} {unit}s" for n, unit in units) or "no evaluation"
 
 
+def seeds_text(n: int) -> str:
+    """'1 seed, no interval' / '3 seeds, 95% CI': how a learning curve of n runs is drawn."""
+    return "1 seed, no interval" if n == 1 else f"{n} seeds, 95% CI"
+
+
+def curve_caption(groups: Sequence[Sequence[Run]]) -> str:
+    counts = sorted({len(runs) for runs in groups})
+    return "Learning curves: mean over training seeds per line (" + "; ".join(seeds_text(n) for n in counts) + ")"
+
+
 def table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
@@ -160,7 +170,7 @@ def teachers_section(results: StudyResults, figure_dir: Path, link_prefix: str) 
     for (task, level, actor), runs in groups.items():
         band = seed_band([r.curve for r in runs], "return_mean")
         if band:
-            panels[task][f"{level} {actor} ({len(runs)} seed{'s' * (len(runs) > 1)})"] = band
+            panels[task][f"{level} {actor} ({seeds_text(len(runs))})"] = band
         dataset = results.datasets.get(f"{task}-{level}", {}).get("return_mean")
         if dataset is not None:
             references[task][f"{level} dataset"] = dataset
@@ -172,11 +182,9 @@ def teachers_section(results: StudyResults, figure_dir: Path, link_prefix: str) 
     name = "teachers.png"
     band_curves(figure_dir / name, panels, references, "episode return",
                 "PBRL teachers: evaluation return during training (dashed: dataset mean)")
-    seeds = sorted({len(runs) for runs in groups.values()})
     out += [f"![teachers]({link_prefix}{name})", "",
-            f"Learning curves: mean over {'/'.join(map(str, seeds))} teacher seed(s) per group"
-            f"{', shaded 95% CI' if max(seeds) > 1 else ' (one seed: no interval)'}; dashed lines: mean episode "
-            "return of the dataset the teacher learned from.", "",
+            f"{curve_caption(list(groups.values()))}; dashed lines: mean episode return of the dataset the teacher "
+            "learned from.", "",
             table(["task", "level", "actor", "seeds", "final return (training-end eval)", "eval return [95% CI]",
                    "dataset return", "eval / dataset"], rows), "",
             f"Eval intervals over {ci_caption([eval_entry(results, r[0], f'teacher_{r[1]}_{r[2]}') for r in rows])}.",
@@ -190,17 +198,19 @@ def multitask_section(results: StudyResults, figure_dir: Path, link_prefix: str)
         return "\n".join(out + [not_run("the train_multitask stage", "Set train_multitask.levels and run "
                                         "`dvc repro train_multitask`."), ""])
     panels: dict = {task: {} for task in results.tasks}
-    rows = []
+    rows, drawn = [], []
     for (level,), runs in group_runs(results.multitask, "level").items():
         teachers = group_runs(results.teachers, "task", "level", "actor")
         for task in results.tasks:
             band = seed_band([r.curve for r in runs], f"return_mean_{task}")
             if band:
-                panels[task][f"multi-task {level} ({len(runs)} seeds)"] = band
+                panels[task][f"multi-task {level} ({seeds_text(len(runs))})"] = band
+                drawn.append(runs)
             single = teachers.get((task, level, "deterministic"), [])
             single_band = seed_band([r.curve for r in single], "return_mean")
             if single_band:
-                panels[task][f"single-task {level} ({len(single)} seeds)"] = single_band
+                panels[task][f"single-task {level} ({seeds_text(len(single))})"] = single_band
+                drawn.append(single)
             mt, st = eval_entry(results, task, f"multitask_{level}"), eval_entry(results, task,
                                                                                  f"teacher_{level}_deterministic")
             rows.append([task, level, fmt_ci(mt), fmt_ci(st), fmt(mt["mean"] / st["mean"], 2) if mt and st else "n/a"])
@@ -208,15 +218,11 @@ def multitask_section(results: StudyResults, figure_dir: Path, link_prefix: str)
     band_curves(figure_dir / name, panels, {}, "episode return",
                 "naive multi-task PBRL (one actor) vs single-task PBRL")
     out += [f"![multitask]({link_prefix}{name})", "",
-            "Learning curves: mean over training seeds (shaded 95% CI with several seeds). The multi-task agent "
+            f"{curve_caption(drawn)}. The multi-task agent "
             "counts gradient steps per task.", "",
             table(["task", "level", "multi-task eval [95% CI]", "single-task teacher eval [95% CI]",
                    "multi / single"], rows), ""]
     return "\n".join(out)
-
-
-def _student_label(run: Run) -> str:
-    return f"{run.key['loss']} {run.key['pairing']}"
 
 
 def losses_section(results: StudyResults, figure_dir: Path, link_prefix: str) -> str:
@@ -226,13 +232,14 @@ def losses_section(results: StudyResults, figure_dir: Path, link_prefix: str) ->
     panels: dict = {task: {} for task in results.tasks}
     references: dict = {task: {} for task in results.tasks}
     rows = []
-    for (loss, pairing), runs in group_runs(results.students, "loss", "pairing").items():
+    student_groups = group_runs(results.students, "loss", "pairing")
+    for (loss, pairing), runs in student_groups.items():
         levels = results.pairing_levels.get(pairing, [pairing] * len(results.tasks))
         actor = "gaussian" if loss == "kl" else "deterministic"
         for task, level in zip(results.tasks, levels):
             band = seed_band([r.curve for r in runs], f"return_mean_{task}")
             if band:
-                panels[task][f"{loss} {pairing} ({len(runs)} seeds)"] = band
+                panels[task][f"{loss} {pairing} ({seeds_text(len(runs))})"] = band
             teacher = eval_entry(results, task, f"teacher_{level}_{actor}")
             if teacher:
                 references[task][f"{level} {actor} teacher"] = teacher["mean"]
@@ -246,7 +253,7 @@ def losses_section(results: StudyResults, figure_dir: Path, link_prefix: str) ->
     band_curves(figure_dir / name, panels, references, "episode return",
                 "students by distillation loss (dashed: teacher eval mean)")
     out += [f"![losses]({link_prefix}{name})", "",
-            "Learning curves: mean over training seeds, shaded 95% CI; MSE and Q distil the deterministic "
+            f"{curve_caption(list(student_groups.values()))}; MSE and Q distil the deterministic "
             "teachers, KL the Gaussian ones. Dashed: each teacher's eval-stage mean.", "",
             table(["loss", "pairing", "task", "seeds", "student eval [95% CI]", "teacher eval [95% CI]",
                    "student / teacher", "final action MSE"], rows), "",
