@@ -18,7 +18,7 @@ import os
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import torch
@@ -104,29 +104,36 @@ def run_job(job: Job, seeds: list[list[int]], episode_length: int, rollout_envs:
     return episode_returns(policy, job.eval_task, flat, episode_length, rollout_envs).reshape(len(seeds), -1)
 
 
-def _worker(args: tuple) -> np.ndarray:
+def _in_worker(call: tuple) -> Any:
+    fn, args = call
     set_threads(1)
-    return run_job(*args)
+    return fn(*args)
+
+
+def parallel_map(fn: Callable, args: Sequence[tuple], workers: int, desc: str, progress: bool = False) -> list:
+    """``[fn(*a) for a in args]`` in order, over ``workers`` single-threaded processes (in this
+    process when ``workers`` or the number of calls is 1); a tqdm bar counts finished calls.
+    ``fn`` must be a module-level function (it is pickled)."""
+    bar = tqdm(total=len(args), desc=desc, unit="job", disable=not progress)
+    results = []
+    if workers == 1 or len(args) == 1:
+        for a in args:
+            results.append(fn(*a))
+            bar.update(1)
+    else:
+        with ProcessPoolExecutor(max_workers=min(workers, len(args), os.cpu_count() or 1)) as pool:
+            for result in pool.map(_in_worker, [(fn, a) for a in args]):
+                results.append(result)
+                bar.update(1)
+    bar.close()
+    return results
 
 
 def run_jobs(jobs: Sequence[Job], seeds: list[list[int]], episode_length: int, config: EvalConfig,
              progress: bool = False) -> list[np.ndarray]:
     """Every job's returns, in job order; ``config.workers`` processes share the jobs."""
     args = [(job, seeds, episode_length, config.rollout_envs) for job in jobs]
-    bar = tqdm(total=len(jobs), desc="eval", unit="job", disable=not progress)
-    if config.workers == 1 or len(jobs) == 1:
-        results = []
-        for a in args:
-            results.append(run_job(*a))
-            bar.update(1)
-    else:
-        with ProcessPoolExecutor(max_workers=min(config.workers, len(jobs), os.cpu_count() or 1)) as pool:
-            results = []
-            for result in pool.map(_worker, args):
-                results.append(result)
-                bar.update(1)
-    bar.close()
-    return results
+    return parallel_map(run_job, args, config.workers, "eval", progress)
 
 
 def confidence_interval(values: Sequence[float], confidence: float = 0.95) -> dict[str, float | int | None]:

@@ -23,19 +23,17 @@ from __future__ import annotations
 
 import copy
 import itertools
-import os
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from mop_core.config import require
+from mop_core.evaluation import parallel_map
 from mop_core.rollout import collect_episodes
-from mop_core.runtime import derive_seeds, set_threads
+from mop_core.runtime import derive_seeds
 from mop_core.structure import average_comparison, hidden_activations, linear_cka, per_state_comparison
 
 TIES_NOTE = ("Kendall's tau-b: ReLU outputs are often exactly 0, which ties neurons; tau-b corrects for ties "
@@ -74,29 +72,12 @@ def visited_states(student_path: Path, task: str, seeds: Sequence[int], episode_
     return arrays["observations"].astype(np.float32), returns
 
 
-def _visited_worker(args: tuple) -> tuple[np.ndarray, np.ndarray]:
-    set_threads(1)
-    return visited_states(*args)
-
-
 def collect_visited(jobs: Sequence[tuple[Path, str]], study_seed: int, episode_length: int,
                     config: SharedComputationConfig, progress: bool = False) -> list[tuple[np.ndarray, np.ndarray]]:
     """:func:`visited_states` of every (student checkpoint, task) job, ``config.workers`` processes."""
     args = [(path, task, episode_seeds(study_seed, task, config.episodes), episode_length, config.rollout_envs)
             for path, task in jobs]
-    bar = tqdm(total=len(args), desc="shared_computation rollouts", unit="job", disable=not progress)
-    results = []
-    if config.workers == 1 or len(args) == 1:
-        for a in args:
-            results.append(visited_states(*a))
-            bar.update(1)
-    else:
-        with ProcessPoolExecutor(max_workers=min(config.workers, len(args), os.cpu_count() or 1)) as pool:
-            for result in pool.map(_visited_worker, args):
-                results.append(result)
-                bar.update(1)
-    bar.close()
-    return results
+    return parallel_map(visited_states, args, config.workers, "shared_computation rollouts", progress)
 
 
 def layer_key(index: int) -> str:
