@@ -21,7 +21,7 @@ from mop_core.agents.pbrl import (
 from mop_core.agents.pbrl_multitask import MultiTaskPBRL
 from mop_core.config import ConfigError
 from mop_core.data import Batch
-from mop_core.nn import GaussianActor, with_task_id
+from mop_core.nn import GaussianActor, bounded_log_std, with_task_id
 
 CONFIG = PBRLConfig(hidden_sizes=(16, 16), ensemble_size=4, batch_size=8, ood_actions=2, policy_delay=2,
                     learning_rate=1e-3)
@@ -211,17 +211,59 @@ def test_actor_objective_is_minus_the_ensemble_minimum_and_trains_every_actor_pa
         torch.testing.assert_close(loss, -(q_min + config.entropy_weight * entropy).mean())
 
 
-def test_entropy_temperature_moves_alpha_towards_the_target_entropy():
-    config = PBRLConfig(**{**CONFIG.__dict__, "actor": "gaussian", "entropy_weight": 0.5, "target_entropy": -6.0})
+@pytest.mark.parametrize("target,direction", [(-25.0, -1), (5.0, 1)])
+def test_entropy_temperature_moves_alpha_towards_the_target_entropy(target, direction):
+    config = PBRLConfig(**{**CONFIG.__dict__, "actor": "gaussian", "entropy_weight": 0.5, "target_entropy": target})
     agent = PBRL(config, 24, 6, seed=0)
     assert agent.temperature.value == pytest.approx(0.5)
-    for i in range(6):  # a fresh actor's entropy is far above -6: alpha must fall
+    for i in range(6):  # a fresh actor's entropy (~ -6.5 nats: log sigma mid-range) is above -25 and below 5
         agent.update(_batch(i))
-    assert agent.temperature.value < 0.5
+    assert (agent.temperature.value - 0.5) * direction > 0
     fixed = PBRL(PBRLConfig(**{**CONFIG.__dict__, "actor": "gaussian", "entropy_weight": 0.5}), 24, 6, seed=0)
     for i in range(6):
         fixed.update(_batch(i))
     assert fixed.temperature.value == 0.5
+
+
+def test_log_std_is_bounded_smoothly_and_keeps_its_gradient():
+    raw = torch.linspace(-20, 20, 401, requires_grad=True)
+    log_std = bounded_log_std(raw, -5.0, 0.0)
+    assert torch.all((log_std >= -5.0) & (log_std <= 0.0))
+    assert log_std[200].item() == pytest.approx(-2.5)  # raw 0: the middle of the range
+    log_std[150:251].sum().backward()  # |raw| <= 5: well inside float precision
+    assert torch.all(raw.grad[150:251] > 0)  # a clamp has gradient 0 for raw > 0 here
+
+
+def test_entropy_ascent_cannot_pin_the_log_std_head():
+    """Pure entropy ascent (the entropy bonus with no Q term) drives sigma towards its upper bound. With a
+    hard clamp the head's gradient is exactly 0 once a raw output passes the bound (2/3 of them start there),
+    and sigma stays pinned whatever alpha does; the smooth bound keeps a gradient, so alpha can pull it back.
+    (Gradient descent, whose steps scale with the gradient, as an entropy term weighted by alpha.)"""
+    torch.manual_seed(0)
+    actor = GaussianActor(24, 6, (32, 32), log_std_min=-5.0, log_std_max=0.0)
+    head = actor.net[-1]
+    obs = torch.randn(256, 24)
+
+    def entropy(seed: int) -> torch.Tensor:
+        return actor.rsample(obs, torch.Generator().manual_seed(seed))[1].mean()
+
+    entropy(0).backward()
+    assert torch.all(head.bias.grad[6:] != 0)  # every log-std output, at initialisation
+    optimizer = torch.optim.SGD(actor.parameters(), lr=0.05)
+    for step in range(2000):
+        optimizer.zero_grad()
+        (-entropy(step)).backward()
+        optimizer.step()
+    optimizer.zero_grad()
+    value = entropy(0)
+    value.backward()
+    assert torch.all(head.bias.grad[6:] != 0)
+    assert value < 6 * 0.5 * math.log(2 * math.pi * math.e)  # below the entropy at the bound, not at it
+    for step in range(50):  # and the other direction works: minimising the entropy lowers it
+        optimizer.zero_grad()
+        entropy(step).backward()
+        optimizer.step()
+    assert entropy(0) < value  # (a clamp past its bound: unchanged, the gradient is 0)
 
 
 def test_gaussian_actor_samples_within_bounds_with_the_closed_form_entropy():

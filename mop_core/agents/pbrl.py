@@ -73,7 +73,7 @@ class PBRLConfig:
     beta_ood_decay: float = 0.99995  # per critic step
     entropy_weight: float = 0.1  # Gaussian actor only: alpha, the weight of H(pi(.|s)) (initial value if tuned)
     target_entropy: float | None = None  # Gaussian actor only: tune alpha towards this entropy (SAC: -act_dim)
-    log_std_min: float = -5.0  # Gaussian actor only: clamp of log sigma
+    log_std_min: float = -5.0  # Gaussian actor only: log sigma bounded smoothly to (min, max)
     log_std_max: float = 0.0
 
     def __post_init__(self) -> None:

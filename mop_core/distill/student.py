@@ -17,7 +17,7 @@ class StudentConfig:
     """Architecture of the student: ReLU hidden layers, tanh output (thesis: 256 x 256)."""
 
     hidden_sizes: tuple[int, ...] = (256, 256)
-    log_std_min: float = -5.0  # Gaussian students (the KL loss) only: clamp of log sigma
+    log_std_min: float = -5.0  # Gaussian students (the KL loss) only: log sigma bounded smoothly to (min, max)
     log_std_max: float = 0.0
 
     def __post_init__(self) -> None:
