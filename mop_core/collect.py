@@ -29,13 +29,11 @@ from tqdm import tqdm
 from mop_core.agents.td3 import TD3, TD3Config
 from mop_core.artifacts import package_versions, save_checkpoint, state_sha256, write_curve
 from mop_core.config import require, to_dict
-from mop_core.data import ReplayBuffer, write_dataset, write_json
+from mop_core.data import LEVELS, ReplayBuffer, write_dataset, write_json
 from mop_core.envs import ACT_DIM, OBS_DIM, PHYSICS_DIM, WalkerEnv
 from mop_core.rollout import collect_episodes, episode_returns, trajectory_returns
 from mop_core.runtime import derive_seeds
 from mop_core.tasks import REWARD_FEATURES, get_task
-
-LEVELS = ("expert", "medium", "medium_replay")
 
 
 @dataclass(frozen=True)
@@ -49,9 +47,11 @@ class ScheduleConfig:
     eval_every: int = 10000  # gradient steps between learning-curve evaluations
     eval_episodes: int = 5  # episodes per learning-curve evaluation
     snapshot_eval_episodes: int = 10  # episodes to measure each snapshot's return (Table 4.1)
+    random_episodes: int = 100  # uniformly random-action episodes: R_random of the normalised score
 
     def __post_init__(self) -> None:
-        for name in ("total_steps", "medium_step", "eval_every", "eval_episodes", "snapshot_eval_episodes"):
+        for name in ("total_steps", "medium_step", "eval_every", "eval_episodes", "snapshot_eval_episodes",
+                     "random_episodes"):
             require(getattr(self, name) > 0, name, "a positive integer", getattr(self, name))
         require(self.warmup_steps >= 0, "warmup_steps", "a non-negative integer", self.warmup_steps)
         require(self.medium_step < self.total_steps, "medium_step",
@@ -100,9 +100,21 @@ class CollectPaths:
 def task_seeds(seed: int, task: str) -> dict[str, int]:
     """Independent seeds per purpose, derived from (study seed, task name) only.
 
-    Adding or reordering tasks in a study leaves every other task's seeds unchanged.
+    Adding or reordering tasks in a study leaves every other task's seeds unchanged. ``agent`` seeds
+    TD3's initialisation and its noise generator (exploration and target smoothing); the replay
+    sampler and the warm-up actions have seeds of their own, so no two streams are the same.
     """
-    return derive_seeds([seed, task], ("train_env", "agent", "eval", "expert_rollout", "medium_rollout"))
+    return derive_seeds([seed, task], ("train_env", "agent", "eval", "expert_rollout", "medium_rollout", "sampler",
+                                       "warmup", "random_policy", "random_episodes"))
+
+
+def random_returns(task: str, episodes: int, seed: int, episode_length: int, rollout_envs: int,
+                   policy_seed: int) -> np.ndarray:
+    """Returns of ``episodes`` episodes of uniformly random actions in [-1, 1]^6 (R_random of the
+    normalised score), episode seeds ``seed, seed + 1, ...``."""
+    rng = np.random.default_rng(policy_seed)
+    return episode_returns(lambda obs: rng.uniform(-1.0, 1.0, size=(len(obs), ACT_DIM)), task,
+                           _eval_seeds(seed, episodes), episode_length, rollout_envs)
 
 
 def load_actor(checkpoint: dict) -> Callable[[np.ndarray], np.ndarray]:
@@ -140,8 +152,8 @@ def train_behaviour(task: str, config: CollectConfig, seed: int, device: torch.d
     sched, seeds = config.schedule, task_seeds(seed, task)
     env = WalkerEnv(task, seeds["train_env"], config.episode_length)
     agent = TD3(config.td3, OBS_DIM, ACT_DIM, seeds["agent"], device)
-    rng = np.random.default_rng(seeds["agent"])  # warm-up actions
-    sampler = torch.Generator().manual_seed(seeds["agent"])  # replay minibatches (CPU, whatever the device)
+    rng = np.random.default_rng(seeds["warmup"])  # warm-up actions
+    sampler = torch.Generator().manual_seed(seeds["sampler"])  # replay minibatches (CPU, whatever the device)
     buffer = ReplayBuffer(sched.warmup_steps + sched.total_steps, OBS_DIM, ACT_DIM, PHYSICS_DIM, len(REWARD_FEATURES))
     eval_seeds = _eval_seeds(seeds["eval"], sched.eval_episodes)
     policy = lambda o: agent.act(o).astype(np.float64)  # noqa: E731
@@ -234,6 +246,11 @@ def collect_task(task: str, config: CollectConfig, seed: int, paths: CollectPath
         policies[level] = policy
         summary["snapshots"][level] = {k: checkpoint[k] for k in
                                        ("gradient_steps", "env_steps", "return_mean", "return_std", "sha256")}
+
+    random = random_returns(task, config.schedule.random_episodes, seeds["random_episodes"], config.episode_length,
+                            config.datasets.rollout_envs, seeds["random_policy"])
+    summary["random"] = {"return_mean": float(random.mean()), "return_std": float(random.std()),
+                         "episodes": len(random)}
 
     size = config.datasets
 

@@ -54,11 +54,15 @@ class WalkerTask:
         move_speed: target horizontal speed ``v`` in m/s; 0 means the pure stand reward.
         dm_control_task: the dm_control suite task with this reward (used to build envs and to
             check rewards against dm_control's own ``get_reward``).
+        expert_return: the published expert return of this task (UTDS's ``task.json``, the
+            reference of D4RL-style normalised scores ``100 (R - R_random) / (R_expert - R_random)``;
+            R_random is measured by the collect stage).
     """
 
     name: str
     move_speed: float
     dm_control_task: str
+    expert_return: float
 
     def reward(self, features: np.ndarray) -> np.ndarray:
         """Reward of each row of ``features [..., 3]`` (columns :data:`REWARD_FEATURES`), float64."""
@@ -78,9 +82,9 @@ class WalkerTask:
 TASKS: dict[str, WalkerTask] = {
     task.name: task
     for task in (
-        WalkerTask("stand", 0.0, "stand"),
-        WalkerTask("walk", 1.0, "walk"),
-        WalkerTask("run", 8.0, "run"),
+        WalkerTask("stand", 0.0, "stand", expert_return=986.8),
+        WalkerTask("walk", 1.0, "walk", expert_return=980.0),
+        WalkerTask("run", 8.0, "run", expert_return=842.6),
     )
 }
 

@@ -5,7 +5,8 @@ All tasks run in parallel, one single-threaded process per task (``collect.worke
 
 Outputs: data/behaviour/<task>/{medium,expert}.pt, data/datasets/<task>-<level>.hdf5,
 results/collect/datasets/<task>-<level>.json (dvc metrics), results/collect/curves/<task>.tsv
-(dvc plots) and results/collect/metrics.json (snapshot returns and times per task).
+(dvc plots) and results/collect/metrics.json (snapshot returns, the uniformly random policy's return
+R_random of the normalised scores, and times per task).
 """
 
 from __future__ import annotations
@@ -67,12 +68,15 @@ def main() -> None:
                       "expert_return": s["snapshots"]["expert"]["return_mean"],
                       "medium_gradient_steps": s["snapshots"]["medium"]["gradient_steps"],
                       "expert_gradient_steps": s["snapshots"]["expert"]["gradient_steps"],
+                      "random_return": s["random"]["return_mean"], "random_return_std": s["random"]["return_std"],
+                      "random_episodes": s["random"]["episodes"],
                       "seconds": s["total_seconds"]} for task, s in summaries.items()}
     metrics["stage_seconds"] = round(time.perf_counter() - started, 1)
     write_json(RESULTS / "collect" / "metrics.json", metrics)
     for task, s in summaries.items():
         print(f"{task}: medium {s['snapshots']['medium']['return_mean']:.1f} "
-              f"expert {s['snapshots']['expert']['return_mean']:.1f} ({s['total_seconds']:.0f} s)")
+              f"expert {s['snapshots']['expert']['return_mean']:.1f} random {s['random']['return_mean']:.1f} "
+              f"({s['total_seconds']:.0f} s)")
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@ import pytest
 import torch
 from conftest import collect_paths
 
-from mop_core.collect import LEVELS, CollectConfig, ScheduleConfig, collect_task, task_seeds
+from mop_core.collect import LEVELS, CollectConfig, ScheduleConfig, collect_task, random_returns, task_seeds
 from mop_core.config import ConfigError, from_mapping
 from mop_core.data import read_dataset
 
@@ -49,6 +49,56 @@ def test_same_seed_gives_byte_identical_datasets(tiny_collected, tiny_collect_co
 def test_task_seeds_do_not_depend_on_other_tasks():
     assert task_seeds(0, "walk") == task_seeds(0, "walk")
     assert task_seeds(0, "walk") != task_seeds(0, "stand") != task_seeds(1, "stand")
+    assert len(set(task_seeds(0, "walk").values())) == len(task_seeds(0, "walk"))  # one stream per purpose
+
+
+def test_td3_replay_sampler_warmup_and_noise_draw_from_different_seeds(tiny_collect_config, monkeypatch):
+    """The replay sampler, the warm-up actions and TD3's noise generator (exploration and target smoothing)
+    were once all seeded with the agent's seed: correlated streams. Each now has its own."""
+    import mop_core.collect as collect
+    from mop_core.data import ReplayBuffer
+
+    seen: dict[str, set[int]] = {"sampler": set(), "noise": set(), "warmup": set()}
+    sample, default_rng = ReplayBuffer.sample, np.random.default_rng
+
+    def record_sample(self, batch_size, generator):
+        seen["sampler"].add(generator.initial_seed())
+        return sample(self, batch_size, generator)
+
+    def record_rng(seed=None):
+        seen["warmup"].add(int(seed))
+        return default_rng(seed)
+
+    class RecordingTD3(collect.TD3):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            seen["noise"].add(self.generator.initial_seed())
+
+    monkeypatch.setattr(ReplayBuffer, "sample", record_sample)
+    monkeypatch.setattr(collect, "TD3", RecordingTD3)
+    monkeypatch.setattr(collect.np.random, "default_rng", record_rng)
+    schedule = ScheduleConfig(**{**tiny_collect_config.schedule.__dict__, "total_steps": 20, "medium_step": 10,
+                                 "warmup_steps": 50, "eval_every": 20})
+    collect.train_behaviour("stand", CollectConfig(tiny_collect_config.td3, schedule, tiny_collect_config.datasets,
+                                                   tiny_collect_config.episode_length), 0, torch.device("cpu"), False)
+    seeds = task_seeds(0, "stand")
+    assert seen == {"sampler": {seeds["sampler"]}, "noise": {seeds["agent"]}, "warmup": {seeds["warmup"]}}
+    assert len({seeds["sampler"], seeds["agent"], seeds["warmup"]}) == 3
+
+
+def test_collect_measures_the_random_policys_return(tiny_collected, tiny_collect_config):
+    _, summary = tiny_collected
+    random = summary["random"]
+    assert random["episodes"] == tiny_collect_config.schedule.random_episodes
+    assert 0 <= random["return_mean"] <= tiny_collect_config.episode_length  # rewards lie in [0, 1]
+    seeds = task_seeds(0, "stand")
+    envs = tiny_collect_config.datasets.rollout_envs
+    again = random_returns("stand", random["episodes"], seeds["random_episodes"], tiny_collect_config.episode_length,
+                           envs, seeds["random_policy"])
+    assert float(again.mean()) == pytest.approx(random["return_mean"], rel=1e-12)  # repeatable
+    other = random_returns("stand", random["episodes"], seeds["random_episodes"], tiny_collect_config.episode_length,
+                           envs, seeds["random_policy"] + 1)
+    assert float(other.mean()) != random["return_mean"]
 
 
 def test_medium_by_target_return(tiny_collect_config, tmp_path):

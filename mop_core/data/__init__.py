@@ -2,6 +2,7 @@
 
 from mop_core.data.buffer import Batch, ReplayBuffer, TransitionTensors
 from mop_core.data.hdf5 import (
+                                LEVELS,
                                 Dataset,
                                 DatasetError,
                                 atomic_path,
@@ -12,5 +13,5 @@ from mop_core.data.hdf5 import (
                                 write_relabel,
 )
 
-__all__ = ["Batch", "Dataset", "DatasetError", "ReplayBuffer", "TransitionTensors", "atomic_path", "read_dataset",
-           "read_relabel", "write_dataset", "write_json", "write_relabel"]
+__all__ = ["Batch", "Dataset", "DatasetError", "LEVELS", "ReplayBuffer", "TransitionTensors", "atomic_path",
+           "read_dataset", "read_relabel", "write_dataset", "write_json", "write_relabel"]

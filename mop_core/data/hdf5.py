@@ -46,6 +46,8 @@ DATASET_SCHEMA: dict[str, tuple[str, tuple[int, ...], np.dtype]] = {
     "next_physics": ("infos/next_physics", (18,), np.dtype(np.float64)),
 }
 FEATURE_PATHS = tuple(f"infos/{name}" for name in REWARD_FEATURES)
+#: Dataset levels (thesis 4.4.3); the ``level`` attribute of every dataset file is one of them.
+LEVELS = ("expert", "medium", "medium_replay")
 REQUIRED_ATTRS = ("task", "level", "seed", "episode_length", "behaviour_sha256", "content_sha256")
 
 
