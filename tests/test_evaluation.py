@@ -1,5 +1,5 @@
-"""Evaluation: confidence intervals on known data, the CI unit of a group, and batched rollouts of
-checkpoints that match one-env-at-a-time rollouts."""
+"""Evaluation: confidence intervals on known data, the CI unit of a group (episodes, or >= 3 training
+seeds), normalised scores, and batched rollouts of checkpoints that match one-env-at-a-time rollouts."""
 
 from __future__ import annotations
 
@@ -12,13 +12,16 @@ from mop_core.evaluation import (
     EvalConfig,
     Job,
     PolicySpec,
-    confidence_interval,
     episode_seeds,
+    improvement_summary,
+    iqm_summary,
     load_policy,
+    ratio_to_teacher,
     run_jobs,
     summarise_group,
 )
 from mop_core.rollout import episode_returns
+from mop_core.statistics import confidence_interval
 from mop_core.teachers import load_teacher
 
 
@@ -36,34 +39,88 @@ def test_confidence_interval_on_known_data():
     assert confidence_interval([2.0, 2.0])["ci_low"] == confidence_interval([2.0, 2.0])["ci_high"] == 2.0
 
 
-def test_group_ci_is_over_training_seeds_when_there_are_several():
-    one = {0: np.array([[1.0, 3.0], [5.0, 7.0], [9.0, 11.0]])}  # 3 eval seeds x 2 episodes
-    s = summarise_group(one)
-    assert s["ci_unit"] == "eval_seed" and s["n"] == 3 and s["mean"] == 6.0 and s["episodes"] == 6
-    many = {0: np.full((3, 2), 10.0), 1: np.full((3, 2), 20.0)}
-    s = summarise_group(many)
-    assert s["ci_unit"] == "training_seed" and s["n"] == 2 and s["mean"] == 15.0 and s["train_seeds"] == [0, 1]
+def test_a_policy_trained_once_gets_an_interval_over_its_episodes():
+    returns = np.array([100.0, 300.0, 200.0, 400.0, 250.0, 150.0])
+    s = summarise_group({0: returns})
+    expected = confidence_interval(returns)
+    assert s["ci_unit"] == "episode" and s["n"] == 6 and s["episodes"] == 6
+    assert (s["mean"], s["ci_low"], s["ci_high"]) == pytest.approx((expected["mean"], expected["ci_low"],
+                                                                      expected["ci_high"]))
+    assert s["seed_means"] == {"0": pytest.approx(233.333333)} and "runs" not in s
 
 
-def test_eval_config_needs_two_seeds_for_an_interval():
-    with pytest.raises(ConfigError, match="seeds: expected an integer >= 2"):
-        EvalConfig(seeds=1)
+def test_two_training_seeds_pool_their_episodes_and_list_the_seed_means():
+    """Two seeds whose means agree by chance must not get a narrow 'interval over seeds' (t(0.975, 1) = 12.7
+    makes it meaningless either way): the interval is over the pooled episodes, with n saying so."""
+    a, b = np.array([100.0, 400.0, 150.0, 450.0]), np.array([120.0, 380.0, 140.0, 460.0])
+    s = summarise_group({0: a, 1: b})
+    pooled = confidence_interval(np.concatenate([a, b]))
+    assert s["ci_unit"] == "episode" and s["n"] == 8 and s["train_seeds"] == [0, 1]
+    assert (s["ci_low"], s["ci_high"]) == pytest.approx((pooled["ci_low"], pooled["ci_high"]))
+    assert s["seed_means"] == {"0": 275.0, "1": 275.0}
+    assert s["runs"]["1"]["n"] == 4 and s["runs"]["1"]["ci_unit"] == "episode"
+    assert s["ci_high"] - s["ci_low"] > 100  # the episodes' spread, not the seeds' agreement
+
+
+def test_three_or_more_training_seeds_get_an_interval_over_the_seeds():
+    runs = {seed: np.full(4, 100.0 * (seed + 1)) + np.arange(4) for seed in range(3)}
+    s = summarise_group(runs)
+    expected = confidence_interval([r.mean() for r in runs.values()])
+    assert s["ci_unit"] == "training_seed" and s["n"] == 3 and s["episodes"] == 12
+    assert (s["ci_low"], s["ci_high"]) == pytest.approx((expected["ci_low"], expected["ci_high"]))
+
+
+def test_normalised_scores_map_the_mean_and_interval():
+    s = summarise_group({0: np.array([110.0, 530.0, 320.0])}, random_return=110.0, expert_return=530.0)
+    z = s["normalised"]
+    assert z["mean"] == pytest.approx(50.0)
+    assert z["ci_low"] == pytest.approx(100 * (s["ci_low"] - 110) / 420)
+    assert z["ci_high"] == pytest.approx(100 * (s["ci_high"] - 110) / 420)
+
+
+def test_a_student_is_compared_with_the_teacher_run_it_learned_from():
+    teacher = summarise_group({0: np.array([100.0, 120.0]), 1: np.array([300.0, 320.0])})
+    student = summarise_group({0: np.array([150.0, 180.0])})
+    assert ratio_to_teacher(student, teacher, teacher_seed=0) == pytest.approx(165.0 / 110.0)
+    assert ratio_to_teacher(student, teacher, teacher_seed=1) == pytest.approx(165.0 / 310.0)
+    assert ratio_to_teacher(student, teacher) == pytest.approx(165.0 / 210.0)  # a baseline: the teachers' mean
+    with pytest.raises(ValueError, match="teacher_seed: 2 is not among"):
+        ratio_to_teacher(student, teacher, teacher_seed=2)
+
+
+def test_iqm_and_improvement_summaries_name_their_unit_and_sizes():
+    rng = np.random.default_rng(0)
+    good = {"stand": rng.normal(60, 10, 30), "walk": rng.normal(40, 10, 30)}
+    bad = {"stand": rng.normal(30, 10, 15), "walk": rng.normal(10, 10, 15)}
+    summary = iqm_summary(good, reps=200, seed=0)
+    assert summary["tasks"] == "stand, walk" and summary["samples_per_task"] == 30
+    assert summary["ci_low"] < summary["value"] < summary["ci_high"] and "stratified" in summary["ci_unit"]
+    better = improvement_summary(good, bad, reps=200, seed=0)
+    assert (better["samples_x"], better["samples_y"]) == (30, 15) and better["ci_low"] > 0.5
+    with pytest.raises(ValueError, match="same number of samples per task"):
+        iqm_summary({"stand": np.zeros(3), "walk": np.zeros(4)}, reps=10, seed=0)
+
+
+def test_eval_config_needs_two_episodes_for_an_interval_and_a_known_action_rule():
+    with pytest.raises(ConfigError, match="episodes: expected an integer >= 2"):
+        EvalConfig(episodes=1)
+    with pytest.raises(ConfigError, match="gaussian_student_action: expected one of"):
+        EvalConfig(gaussian_student_action="mode")
 
 
 def test_batched_jobs_equal_single_env_rollouts_with_the_same_episode_seeds(tiny_teachers):
     checkpoints, _ = tiny_teachers
-    config = EvalConfig(seeds=2, episodes=2, rollout_envs=4, workers=2)
+    config = EvalConfig(episodes=4, rollout_envs=3, workers=2)
     seeds = episode_seeds(0, config)
-    assert seeds == episode_seeds(0, config) and seeds != episode_seeds(1, config)
+    assert seeds == episode_seeds(0, config) and seeds != episode_seeds(1, config) and len(seeds) == 4
     jobs = [Job("teacher", 0, PolicySpec("teacher", checkpoints[("stand", "deterministic")]), "stand"),
             Job("cross", 0, PolicySpec("teacher", checkpoints[("stand", "deterministic")]), "walk")]
     results = run_jobs(jobs, seeds, 50, config)
-    assert [r.shape for r in results] == [(2, 2), (2, 2)]
+    assert [r.shape for r in results] == [(4,), (4,)]
     policy = load_teacher(checkpoints[("stand", "deterministic")]).act
-    flat = [s for group in seeds for s in group]
     for job, result in zip(jobs, results):
-        single = episode_returns(policy, job.eval_task, flat, 50, num_envs=1)
-        np.testing.assert_allclose(result.ravel(), single, rtol=1e-6)
+        single = episode_returns(policy, job.eval_task, seeds, 50, num_envs=1)
+        np.testing.assert_allclose(result, single, rtol=1e-6)
 
 
 def test_unknown_policy_kind_is_rejected(tmp_path):

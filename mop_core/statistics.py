@@ -1,0 +1,109 @@
+"""Statistics of evaluation returns: t-intervals, normalised scores and the aggregates of rliable.
+
+- :func:`confidence_interval`: mean and Student-t interval ``mean +- t_{0.975, n-1} sd / sqrt(n)``
+  over independent units (episodes of one trained policy, or the means of >= 3 training seeds).
+- :func:`normalised_score`: ``100 (R - R_random) / (R_expert - R_random)`` (D4RL's convention).
+- :func:`iqm`: the interquartile mean, ``scipy.stats.trim_mean(x, 0.25)`` over all scores (Agarwal
+  et al. 2021, "Deep RL at the edge of the statistical precipice"; rliable's ``metrics.aggregate_iqm``).
+- :func:`probability_of_improvement`: ``P(X > Y)`` averaged over tasks, per task the Mann-Whitney
+  U statistic over all score pairs divided by ``n_x n_y`` (ties count 1/2; rliable's
+  ``metrics.probability_of_improvement``).
+- :func:`stratified_bootstrap`: percentile intervals of any of these from resampling the scores
+  with replacement *within each task* (rliable's ``StratifiedBootstrap``/``StratifiedIndependentBootstrap``,
+  ``method='percentile'``). Score matrices are ``[samples, tasks]``; here a sample is one
+  (training run, evaluation episode), so the interval is "over runs x episodes, stratified by task".
+
+Every function is vectorised over bootstrap replicates; results equal rliable's to float precision
+(point estimates) and within Monte Carlo error (intervals): tests/test_statistics.py.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable, Sequence
+
+import numpy as np
+from scipy import stats
+
+#: Fewer training seeds than this get no interval over seeds (t(0.975, 1) = 12.7 makes 2 seeds meaningless).
+MIN_SEEDS_FOR_SEED_CI = 3
+
+
+def confidence_interval(values: Sequence[float], confidence: float = 0.95) -> dict[str, float | int | None]:
+    """Mean, sample standard deviation and the Student-t confidence interval of the mean.
+
+    ``mean +- t_{(1+confidence)/2, n-1} * sd / sqrt(n)``; with one value the interval is undefined
+    (None).
+    """
+    x = np.asarray(values, dtype=np.float64)
+    n = len(x)
+    if n == 0:
+        raise ValueError("values: expected at least one value")
+    mean = float(x.mean())
+    if n == 1:
+        return {"mean": mean, "std": None, "ci_low": None, "ci_high": None, "n": 1}
+    sd = float(x.std(ddof=1))
+    half = float(stats.t.ppf(0.5 + confidence / 2, n - 1) * sd / math.sqrt(n))
+    return {"mean": mean, "std": sd, "ci_low": mean - half, "ci_high": mean + half, "n": n}
+
+
+def normalised_score(returns, random_return: float, expert_return: float):
+    """``100 (R - R_random) / (R_expert - R_random)``: 0 = a uniformly random policy, 100 = the
+    published expert level. Works on floats and arrays."""
+    if not expert_return > random_return:
+        raise ValueError(f"expert_return: expected a value above random_return={random_return}, got {expert_return}")
+    return 100.0 * (np.asarray(returns, dtype=np.float64) - random_return) / (expert_return - random_return)
+
+
+def iqm(scores: np.ndarray) -> np.ndarray:
+    """Interquartile mean over all but the leading axis: ``[..., n, tasks] -> [...]`` (a scalar for
+    a single ``[n, tasks]`` matrix). The mean of the middle 50% of the scores, pooled over tasks."""
+    scores = np.asarray(scores, dtype=np.float64)
+    flat = scores.reshape(*scores.shape[:-2], -1)
+    return stats.trim_mean(flat, proportiontocut=0.25, axis=-1)
+
+
+def probability_of_improvement(x: np.ndarray, y: np.ndarray, chunk: int = 256) -> np.ndarray:
+    """``P(X > Y) + P(X = Y) / 2`` per task, averaged over tasks: ``[..., n, T], [..., m, T] -> [...]``.
+
+    X's and Y's sample counts may differ; their task counts must agree.
+    """
+    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    if x.shape[-1] != y.shape[-1]:
+        raise ValueError(f"x, y: expected the same number of tasks, got {x.shape[-1]} and {y.shape[-1]}")
+    lead = x.shape[:-2]
+    xs, ys = x.reshape(-1, *x.shape[-2:]), y.reshape(-1, *y.shape[-2:])
+    out = []
+    for start in range(0, len(xs), chunk):  # [b, n, 1, T] vs [b, 1, m, T]: every pair, chunked over b
+        a, b = xs[start:start + chunk, :, None, :], ys[start:start + chunk, None, :, :]
+        per_task = (a > b).mean(axis=(1, 2)) + 0.5 * (a == b).mean(axis=(1, 2))
+        out.append(per_task.mean(axis=-1))
+    return np.concatenate(out).reshape(lead)
+
+
+def stratified_bootstrap(statistic: Callable[..., np.ndarray], samples: Sequence[np.ndarray], reps: int = 2000,
+                         confidence: float = 0.95, seed: int = 0) -> dict[str, float]:
+    """Point estimate and percentile bootstrap interval of ``statistic(*samples)``.
+
+    ``samples[k]`` is ``[n_k, T]``; each replicate draws, for every sample and every task
+    independently, ``n_k`` rows with replacement from that task's column (stratified by task, the
+    samples independent of each other). ``statistic`` takes arrays with a leading replicate axis
+    (``[R, n_k, T]``) and returns ``[R]``.
+    """
+    if reps < 1:
+        raise ValueError(f"reps: expected a positive integer, got {reps}")
+    arrays = [np.asarray(s, dtype=np.float64) for s in samples]
+    for k, a in enumerate(arrays):
+        if a.ndim != 2 or a.shape[0] < 1:
+            raise ValueError(f"samples[{k}]: expected a [samples, tasks] matrix, got shape {a.shape}")
+    rng = np.random.default_rng(seed)
+    point = float(statistic(*[a[None] for a in arrays])[0])
+    resampled = []
+    for a in arrays:
+        n, tasks = a.shape
+        rows = rng.integers(0, n, size=(reps, n, tasks))
+        resampled.append(a[rows, np.arange(tasks)])
+    values = statistic(*resampled)
+    tail = 100 * (1 - confidence) / 2
+    low, high = np.percentile(values, [tail, 100 - tail])
+    return {"value": point, "ci_low": float(low), "ci_high": float(high), "reps": reps}
