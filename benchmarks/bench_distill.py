@@ -46,12 +46,16 @@ class RecomputingDistiller(Distiller):
         super().__init__(*args, **kwargs)
         self.teachers = teachers
 
-    def loss(self, rows):
-        live = [TaskStates(t.task, t.states[r], teacher_outputs(actor, t.states[r])[0], None, t.source)
-                for t, r, actor in zip(self.targets, rows, self.teachers)]
+    def loss(self, rows, tasks=None):
+        tasks = list(range(len(self.targets))) if tasks is None else list(tasks)
+        live = list(self.targets)
+        for t, r in zip(tasks, rows):
+            target = self.targets[t]
+            live[t] = TaskStates(target.task, target.states[r], teacher_outputs(self.teachers[t], target.states[r])[0],
+                                 None, target.source)
         cached, self.targets = self.targets, live
         try:
-            return super().loss([torch.arange(len(r)) for r in rows])
+            return super().loss([torch.arange(len(r)) for r in rows], tasks)
         finally:
             self.targets = cached
 

@@ -19,17 +19,34 @@ def _chunks(seeds: Sequence[int], size: int) -> list[Sequence[int]]:
 def episode_returns(policy: Policy, task: str | WalkerTask, seeds: Sequence[int], episode_length: int,
                     num_envs: int | None = None) -> np.ndarray:
     """Undiscounted return of one episode per seed, ``num_envs`` walkers stepped together."""
-    returns = []
+    return _rollouts(policy, task, seeds, episode_length, num_envs, keep_states=False)[0]
+
+
+def returns_and_states(policy: Policy, task: str | WalkerTask, seeds: Sequence[int], episode_length: int,
+                       num_envs: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`episode_returns` and the observations the policy visited, ``[episodes * T, obs]``
+    episode after episode (float32)."""
+    return _rollouts(policy, task, seeds, episode_length, num_envs, keep_states=True)  # type: ignore[return-value]
+
+
+def _rollouts(policy: Policy, task: str | WalkerTask, seeds: Sequence[int], episode_length: int,
+              num_envs: int | None, keep_states: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    returns, states = [], []
     for chunk in _chunks(list(seeds), num_envs or len(seeds)):
         env = VectorWalkerEnv(task, chunk, episode_length)
         obs = env.reset()
         total = np.zeros(len(chunk))
-        for _ in range(episode_length):
+        visited = np.empty((episode_length, len(chunk), obs.shape[-1]), dtype=np.float32) if keep_states else None
+        for t in range(episode_length):
+            if visited is not None:
+                visited[t] = obs
             step = env.step(policy(obs))
             total += step.reward
             obs = step.observation
         returns.append(total)
-    return np.concatenate(returns)
+        if visited is not None:
+            states.append(np.swapaxes(visited, 0, 1).reshape(-1, visited.shape[-1]))
+    return np.concatenate(returns), (np.concatenate(states) if keep_states else None)
 
 
 def collect_episodes(policy: Policy, task: str | WalkerTask, seeds: Sequence[int], episode_length: int,

@@ -10,8 +10,9 @@
      id, ``a_i = E_{s~D_i^S}[h(s, i)]``; tau-b between ``a_i`` and ``a_j``;
    - *linear CKA* (the thesis's suggested future work, 6.2.4) between the activation matrices
      ``H_i = h(S, i)`` and ``H_j = h(S, j)`` over the same states ``S = D_i^S u D_j^S``.
-   ReLU zeros tie neurons; tau-b (not tau-a) accounts for the ties. ``zero_fraction`` records how
-   many activations are exactly zero, i.e. how much tie correction there is.
+   Both Kendall variants are recorded: tau-a (the thesis's formula and the reference code's, so
+   Table 6.1/6.2 stay comparable) and tau-b (corrects for ties: ReLU zeros tie many neurons).
+   ``zero_fraction`` records how many activations are exactly zero, i.e. how much the two differ.
 3. :func:`summarise_students`: a group of students trained with different seeds -> mean and
    standard deviation over seeds of every figure (Table 6.1 rows).
 4. :func:`untrained_like`: the same measures for an untrained network of the student's shape on
@@ -34,11 +35,19 @@ from mop_core.config import require
 from mop_core.evaluation import parallel_map
 from mop_core.rollout import collect_episodes
 from mop_core.runtime import derive_seeds
-from mop_core.structure import average_comparison, hidden_activations, linear_cka, per_state_comparison
+from mop_core.structure import (
+    TAU_VARIANTS,
+    average_comparison,
+    hidden_activations,
+    linear_cka,
+    per_state_comparison,
+)
 
-TIES_NOTE = ("Kendall's tau-b: ReLU outputs are often exactly 0, which ties neurons; tau-b corrects for ties "
-             "(tau_b = (C - D) / sqrt((n0 - n1)(n0 - n2))), so tied neurons count neither for nor against "
-             "agreement. zero_fraction gives the share of zero activations per layer.")
+TIES_NOTE = ("Kendall's tau in two variants: tau-a = (C - D) / n0, the thesis's formula (6.2.2) and the "
+             "reference code's, where tied neuron pairs stay in the denominator; tau-b = (C - D) / "
+             "sqrt((n0 - n1)(n0 - n2)), scipy's default, which removes tied pairs. ReLU outputs are often "
+             "exactly 0 and tie neurons, so tau-a < tau-b; zero_fraction gives the share of zero activations "
+             "per layer.")
 
 
 @dataclass(frozen=True)
@@ -106,11 +115,16 @@ def measure_student(student, tasks: Sequence[str], states: Sequence[torch.Tensor
     for i, j in itertools.combinations(range(len(tasks)), 2):
         rows = {}
         for layer in range(layers):
-            taus = torch.cat([per_state[i][layer][j], per_state[j][layer][i]])  # s ~ D_i u D_j
+            row = {}
+            for variant in TAU_VARIANTS:  # s ~ D_i u D_j
+                taus = torch.cat([per_state[i][layer][j][variant], per_state[j][layer][i][variant]])
+                row[f"per_state_tau_{variant}"] = _stats(taus)
+            for variant in TAU_VARIANTS:
+                row[f"average_tau_{variant}"] = float(averages[layer][variant][i, j])
             under_i = torch.cat([own[i][layer], hidden_activations(student, states[j], i)[layer]])
             under_j = torch.cat([hidden_activations(student, states[i], j)[layer], own[j][layer]])
-            rows[layer_key(layer)] = {"per_state_tau": _stats(taus), "average_tau": float(averages[layer][i, j]),
-                                      "linear_cka": linear_cka(under_i, under_j)}
+            row["linear_cka"] = linear_cka(under_i, under_j)
+            rows[layer_key(layer)] = row
         pairs[f"{tasks[i]}-{tasks[j]}"] = rows
     return {
         "tasks": list(tasks),
@@ -135,17 +149,20 @@ def untrained_like(student, seed: int):
 
 def summarise_students(records: Sequence[dict]) -> dict:
     """Table 6.1 row(s) of a group of students (different training seeds): per pair and layer, the
-    seed-mean of the per-state mean tau, its states' sd, the average tau and CKA, with the sd over
-    seeds (0 for one seed)."""
+    seed-mean of the per-state mean tau (a and b), its states' sd, the average tau (a and b) and CKA,
+    with the sd over seeds (0 for one seed)."""
     summary: dict = {"students": len(records), "pairs": {}}
     for pair, layers in records[0]["pairs"].items():
         out = {}
         for layer in layers:
             entries = [record["pairs"][pair][layer] for record in records]
-            values = {"per_state_tau_mean": [e["per_state_tau"]["mean"] for e in entries],
-                      "per_state_tau_sd": [e["per_state_tau"]["sd"] for e in entries],
-                      "average_tau": [e["average_tau"] for e in entries],
-                      "linear_cka": [e["linear_cka"] for e in entries]}
+            values = {}
+            for variant in TAU_VARIANTS:
+                key = f"per_state_tau_{variant}"
+                values[f"{key}_mean"] = [e[key]["mean"] for e in entries]
+                values[f"{key}_sd"] = [e[key]["sd"] for e in entries]
+            for key in ("average_tau_a", "average_tau_b", "linear_cka"):
+                values[key] = [e[key] for e in entries]
             row: dict = {}
             for key, vals in values.items():
                 row[key] = float(np.mean(vals))

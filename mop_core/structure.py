@@ -1,10 +1,15 @@
-"""Similarity measures for shared computation (thesis 6.2): Kendall's tau-b and linear CKA.
+"""Similarity measures for shared computation (thesis 6.2): Kendall's tau (a and b) and linear CKA.
 
-- :func:`kendall_tau_b` compares two activation vectors by the ranks of their neurons, batched over
-  many vector pairs. ReLU outputs are often exactly zero, which makes ties; tau-b corrects for them:
-  ``tau_b = (C - D) / sqrt((n0 - n1)(n0 - n2))`` with ``n0 = n(n-1)/2`` neuron pairs, ``C - D`` the
-  concordant minus discordant pairs, ``n1``/``n2`` the pairs tied in x/y. Undefined (NaN) when either
-  vector is constant, as in ``scipy.stats.kendalltau``.
+- :func:`kendall_tau` compares two activation vectors by the ranks of their neurons, batched over
+  many vector pairs, and returns both variants from one pass over the neuron pairs:
+  ``tau_a = (C - D) / n0`` (the thesis's formula 2(C - D) / (N(N - 1)) and the reference code's:
+  ties count as neither concordant nor discordant but stay in the denominator) and
+  ``tau_b = (C - D) / sqrt((n0 - n1)(n0 - n2))`` (ties removed from the denominator, scipy's
+  default), with ``n0 = n(n-1)/2`` neuron pairs, ``C - D`` the concordant minus discordant pairs and
+  ``n1``/``n2`` the pairs tied in x/y. ReLU outputs are often exactly zero, which makes many ties,
+  so tau-a is smaller than tau-b; the report shows both so the thesis's numbers stay comparable.
+  tau-b is undefined (NaN) when either vector is constant, as in ``scipy.stats.kendalltau``; tau-a
+  is 0 there.
 - :func:`linear_cka` (Kornblith et al. 2019, the thesis's suggested future work in 6.2.4) compares two
   activation matrices over the same inputs: ``||Y^T X||_F^2 / (||X^T X||_F ||Y^T Y||_F)`` after
   centring each column; invariant to orthogonal transforms and isotropic scaling.
@@ -17,10 +22,13 @@ from typing import Sequence
 
 import torch
 
+TAU_VARIANTS = ("a", "b")
+
 
 @torch.no_grad()
-def kendall_tau_b(x: torch.Tensor, y: torch.Tensor, chunk: int = 32) -> torch.Tensor:
-    """Kendall's tau-b between rows: ``x, y [S, n] -> [S]`` (a single pair ``[n]`` -> scalar).
+def kendall_tau(x: torch.Tensor, y: torch.Tensor, chunk: int = 32) -> dict[str, torch.Tensor]:
+    """Kendall's tau-a and tau-b between rows: ``x, y [S, n] -> {"a": [S], "b": [S]}`` (a single
+    pair ``[n]`` -> scalars).
 
     Builds the ``[chunk, n, n]`` pair-sign matrices in float32 (signs and their sums up to n^2 are
     exact there; the sign of a float32 difference is exact). O(n^2) per row but batched: on CPU about
@@ -36,16 +44,27 @@ def kendall_tau_b(x: torch.Tensor, y: torch.Tensor, chunk: int = 32) -> torch.Te
     x, y = x.to(dtype), y.to(dtype)
     n = x.shape[1]
     n0 = n * (n - 1) / 2
-    out = []
+    tau_a, tau_b = [], []
     for xs, ys in zip(x.split(chunk), y.split(chunk)):
         sx = torch.sign(xs[:, :, None] - xs[:, None, :])  # [s, n, n]; each pair twice, diagonal 0
         sy = torch.sign(ys[:, :, None] - ys[:, None, :])
         score = (sx * sy).sum((1, 2)).double() / 2  # C - D
         ties_x = ((sx == 0).sum((1, 2)).double() - n) / 2  # tied pairs (without i == j)
         ties_y = ((sy == 0).sum((1, 2)).double() - n) / 2
-        out.append(score / torch.sqrt((n0 - ties_x) * (n0 - ties_y)))  # 0/0 -> NaN for a constant vector
-    tau = torch.cat(out)
-    return tau[0] if single else tau
+        tau_a.append(score / n0)
+        tau_b.append(score / torch.sqrt((n0 - ties_x) * (n0 - ties_y)))  # 0/0 -> NaN for a constant vector
+    out = {"a": torch.cat(tau_a), "b": torch.cat(tau_b)}
+    return {k: v[0] for k, v in out.items()} if single else out
+
+
+def kendall_tau_b(x: torch.Tensor, y: torch.Tensor, chunk: int = 32) -> torch.Tensor:
+    """Kendall's tau-b between rows (:func:`kendall_tau`)."""
+    return kendall_tau(x, y, chunk)["b"]
+
+
+def kendall_tau_a(x: torch.Tensor, y: torch.Tensor, chunk: int = 32) -> torch.Tensor:
+    """Kendall's tau-a between rows (:func:`kendall_tau`): ``(C - D) / (n (n - 1) / 2)``."""
+    return kendall_tau(x, y, chunk)["a"]
 
 
 @torch.no_grad()
@@ -88,45 +107,49 @@ def hidden_activations(student, obs: torch.Tensor, task: int | torch.Tensor) -> 
 
 
 @torch.no_grad()
-def per_state_comparison(student, obs: torch.Tensor, own_task: int) -> list[dict[int, torch.Tensor]]:
+def per_state_comparison(student, obs: torch.Tensor, own_task: int) -> list[dict[int, dict[str, torch.Tensor]]]:
     """Thesis 6.2, per state: for each visited state (``obs [N, o]``, visited while acting as
-    ``own_task``), tau-b between a layer's activations under the own task id and under every other
-    task id. Returns per hidden layer ``{other task: tau [N]}``."""
+    ``own_task``), tau-a and tau-b between a layer's activations under the own task id and under every
+    other task id. Returns per hidden layer ``{other task: {"a": tau [N], "b": tau [N]}}``."""
     own = hidden_activations(student, obs, own_task)
-    result: list[dict[int, torch.Tensor]] = [{} for _ in own]
+    result: list[dict[int, dict[str, torch.Tensor]]] = [{} for _ in own]
     for other in range(student.num_tasks):
         if other == own_task:
             continue
         for layer, acts in enumerate(hidden_activations(student, obs, other)):
-            result[layer][other] = kendall_tau_b(own[layer], acts)
+            result[layer][other] = kendall_tau(own[layer], acts)
     return result
 
 
-def per_state_tau_by_layer(student, probes: Sequence[torch.Tensor]) -> list[float]:
-    """The per-state comparison reduced to one number per hidden layer: the mean tau-b over every
-    task's probe states (``probes[i]`` visited as task i) and every other task id. This is the
-    quantity the thesis tracks during training (6.3.1, Figure 6.4b); NaN (constant activations)
-    entries are left out of the mean."""
-    per_layer: list[list[torch.Tensor]] = []
+def per_state_tau_by_layer(student, probes: Sequence[torch.Tensor]) -> dict[str, list[float]]:
+    """The per-state comparison reduced to one number per hidden layer and tau variant: the mean tau
+    over every task's probe states (``probes[i]`` visited as task i) and every other task id,
+    ``{"a": [per layer], "b": [per layer]}``. This is the quantity the thesis tracks during training
+    (6.3.1, Figure 6.4b); NaN (constant activations) entries are left out of the mean."""
+    per_layer: dict[str, list[list[torch.Tensor]]] = {v: [] for v in TAU_VARIANTS}
     for own, obs in enumerate(probes):
         for layer, by_other in enumerate(per_state_comparison(student, obs, own)):
-            if layer == len(per_layer):
-                per_layer.append([])
-            per_layer[layer].extend(by_other.values())
-    return [float(torch.nanmean(torch.cat(values))) if values else float("nan") for values in per_layer]
+            for variant in TAU_VARIANTS:
+                if layer == len(per_layer[variant]):
+                    per_layer[variant].append([])
+                per_layer[variant][layer].extend(taus[variant] for taus in by_other.values())
+    return {variant: [float(torch.nanmean(torch.cat(values))) if values else float("nan") for values in layers]
+            for variant, layers in per_layer.items()}
 
 
-def average_comparison(mean_activations: list[list[torch.Tensor]]) -> list[torch.Tensor]:
+def average_comparison(mean_activations: list[list[torch.Tensor]]) -> list[dict[str, torch.Tensor]]:
     """Thesis 6.2, on averages: ``mean_activations[task][layer]`` is the mean activation ``[width]`` of
     each neuron over that task's own visited states (under its own task id). Returns per layer the
-    ``[m, m]`` matrix of tau-b between every pair of tasks (1 on the diagonal)."""
+    ``[m, m]`` matrices of tau-a and tau-b between every pair of tasks (1 on the diagonal)."""
     m = len(mean_activations)
     layers = len(mean_activations[0])
     out = []
     for layer in range(layers):
-        tau = torch.ones(m, m, dtype=torch.float64)
+        tau = {variant: torch.ones(m, m, dtype=torch.float64) for variant in TAU_VARIANTS}
         for i in range(m):
             for j in range(i + 1, m):
-                tau[i, j] = tau[j, i] = kendall_tau_b(mean_activations[i][layer], mean_activations[j][layer])
+                pair = kendall_tau(mean_activations[i][layer], mean_activations[j][layer])
+                for variant in TAU_VARIANTS:
+                    tau[variant][i, j] = tau[variant][j, i] = pair[variant]
         out.append(tau)
     return out

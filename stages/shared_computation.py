@@ -4,8 +4,8 @@
 
 Every student of the distill grid acts online on each of its tasks (``shared_computation.episodes``
 episodes per task; the thesis used 1000); its post-ReLU activations on the visited states are
-compared across task ids: per state (Kendall's tau-b, mean +- sd over states), on task averages
-(tau-b of the mean activations) and by linear CKA (mop_core/shared_computation.py); the same
+compared across task ids: per state (Kendall's tau-a and tau-b, mean +- sd over states), on task
+averages (tau-a and tau-b of the mean activations) and by linear CKA (mop_core/shared_computation.py); the same
 measures of an untrained copy of each group's first student on its states are the reference. Writes
 - results/shared_computation/metrics.json: Table 6.1 per (loss, pairing) group (mean over the
   group's seeds) and per student (dvc metrics);
@@ -93,25 +93,27 @@ def main() -> None:
     write_json(OUT / "metrics.json", metrics)
 
     curves = {name: read_curve(paths[name].curve) for name in names}
-    init = {}
-    for name in names:
-        at_init = json.loads(paths[name].metrics.read_text()).get("per_state_tau", {}).get("at_init", {})
-        init[name] = [at_init[key] for key in sorted(at_init, key=lambda k: int(k.removeprefix("layer")))]
-    keys = [f"per_state_tau_layer{k + 1}" for k in range(max((len(v) for v in init.values()), default=0))]
+    tau_records = {name: json.loads(paths[name].metrics.read_text()).get("per_state_tau") for name in names}
+    keys = sorted({key for record in tau_records.values() if record for key in record["at_init"]},
+                  key=lambda k: (k.split("_layer")[0][-1] != "a", int(k.split("_layer")[1])))  # tau-a panels first
     if keys:
-        metric_curves(OUT / "tau_during_training.png", curves, keys, init, "per-state Kendall tau-b",
-                      "per-state tau during distillation (dotted: at initialisation)")
+        sources = sorted({record["probe_source"] for record in tau_records.values() if record})
+        init = {name: [record["at_init"].get(key, float("nan")) for key in keys]
+                for name, record in tau_records.items() if record}
+        metric_curves(OUT / "tau_during_training.png", curves, keys, init, "per-state Kendall tau",
+                      f"per-state tau during distillation on {'/'.join(sources)} probe states "
+                      "(dotted: at initialisation)")
     else:  # students trained without probe states: say so in the figure's place
         metric_curves(OUT / "tau_during_training.png", {}, ["per_state_tau (distill.probe_states = 0)"], None,
-                      "per-state Kendall tau-b", "no per-state tau was logged during distillation")
+                      "per-state Kendall tau", "no per-state tau was logged during distillation")
     for group, summary in metrics["groups"].items():
         for pair, layers in summary["pairs"].items():
             for layer, row in layers.items():
                 ref = summary["untrained"]["pairs"][pair][layer]
-                print(f"{group:16s} {pair:12s} {layer}: per-state tau {row['per_state_tau_mean']:.3f} "
-                      f"+- {row['per_state_tau_sd']:.3f}  average tau {row['average_tau']:.3f}  "
-                      f"linear CKA {row['linear_cka']:.3f}  ({summary['students']} students; untrained: "
-                      f"{ref['per_state_tau']['mean']:.3f}, {ref['average_tau']:.3f}, {ref['linear_cka']:.3f})")
+                print(f"{group:16s} {pair:12s} {layer}: per-state tau-a/b {row['per_state_tau_a_mean']:.3f}/"
+                      f"{row['per_state_tau_b_mean']:.3f}  average tau-a/b {row['average_tau_a']:.3f}/"
+                      f"{row['average_tau_b']:.3f}  linear CKA {row['linear_cka']:.3f}  ({summary['students']} "
+                      f"students; untrained tau-b: {ref['per_state_tau_b']['mean']:.3f}, {ref['average_tau_b']:.3f})")
     print(f"shared_computation: {len(names)} students in {seconds:.0f} s (rollouts {rollout_seconds:.0f} s)")
 
 

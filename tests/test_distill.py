@@ -13,7 +13,7 @@ import torch
 from mop_core.config import ConfigError
 from mop_core.distill.distiller import DistillConfig, Distiller
 from mop_core.distill.losses import gaussian_kl_per_state, mse_per_state, q_per_state, reduce_ensemble
-from mop_core.distill.run import StudentSources, distill_student, load_student
+from mop_core.distill.run import StudentSources, distill_student, load_student, student_policy
 from mop_core.distill.states import TaskStates, offline_states, online_states, task_states
 from mop_core.distill.student import Student, StudentConfig
 from mop_core.envs import WalkerEnv
@@ -143,7 +143,7 @@ def test_every_loss_trains_every_student_parameter_and_leaves_teachers_frozen(lo
     before = [{k: v.clone() for k, v in s.items()} for s in before]
     distiller = Distiller(DistillConfig(loss=loss, student=TINY, batch_size=8), targets, 24, 6, seed=0,
                           critics=critics)
-    loss_value, metrics = distiller.loss(distiller._rows(8))
+    loss_value, metrics = distiller.loss([distiller._rows(t, 8) for t in range(2)])
     loss_value.backward()
     for name, p in distiller.student.named_parameters():
         assert p.grad is not None and p.grad.abs().sum() > 0, name
@@ -172,7 +172,34 @@ def test_mse_distillation_fits_the_teachers_and_is_repeatable():
         assert torch.equal(x, y)
 
 
+@pytest.mark.parametrize("loss", ["mse", "q", "kl"])
+def test_step_per_task_takes_one_adam_step_per_task_on_that_tasks_rows_only(loss):
+    """The reference code's schedule: each update takes m optimiser steps, each on one task's batch."""
+    targets = _targets(2, gaussian=loss == "kl")
+    critics = [EnsembleCritic(24, 6, (8,), 3) for _ in targets] if loss == "q" else None
+    config = DistillConfig(loss=loss, student=TINY, batch_size=8, step_per_task=True)
+    distiller = Distiller(config, targets, 24, 6, seed=0, critics=critics)
+    metrics = distiller.update()
+    steps = {int(state["step"]) for state in distiller.optimizer.state.values()}
+    assert steps == {2} and distiller.updates == 1  # 2 tasks: 2 Adam steps in one update
+    assert metrics["loss"] == pytest.approx((metrics["loss_task0"] + metrics["loss_task1"]) / 2)
+    # the update is exactly a step on task 0's rows alone, then one on task 1's: replay it by hand
+    replay = Distiller(DistillConfig(loss=loss, student=TINY, batch_size=8), targets, 24, 6, seed=0, critics=critics)
+    for group in replay.optimizer.param_groups:
+        group["lr"] = config.learning_rate
+    for task in (0, 1):
+        loss_value, _ = replay.loss([replay._rows(task, 8)], [task])
+        replay._step(loss_value)
+    for x, y in zip(replay.student.parameters(), distiller.student.parameters()):
+        assert torch.equal(x, y)
+    one_step = Distiller(DistillConfig(loss=loss, student=TINY, batch_size=8), targets, 24, 6, seed=0, critics=critics)
+    one_step.update()
+    assert {int(state["step"]) for state in one_step.optimizer.state.values()} == {1}
+
+
 def test_config_errors_name_the_parameter():
+    with pytest.raises(ConfigError, match="probe_source: expected one of"):
+        DistillConfig(probe_source="dataset")
     with pytest.raises(ConfigError, match="loss: expected one of"):
         DistillConfig(loss="l1")
     with pytest.raises(ConfigError, match="num_states: expected a positive number of states for state_source online"):
@@ -214,14 +241,20 @@ def test_distill_run_writes_student_metrics_and_curve(tiny_teachers, tmp_path, l
     header, *rows = (tmp_path / "curve.tsv").read_text().splitlines()
     assert {"return_mean_stand", "return_mean_walk", "loss_stand", "loss_walk"} <= set(header.split("\t"))
     assert len(rows) == 2 and not (tmp_path / "resume.pt").exists()
-    # the per-state tau curve (thesis 6.3.1): one column per hidden layer, a tau in [-1, 1] at every evaluation
+    # the per-state tau curve (thesis 6.3.1): per hidden layer a tau-a and a tau-b column, in [-1, 1] at every
+    # evaluation; tau-a <= tau-b in size (ties stay in tau-a's denominator)
     columns = header.split("\t")
     for layer in (1, 2):
-        taus = [float(row.split("\t")[columns.index(f"per_state_tau_layer{layer}")]) for row in rows]
-        assert all(-1 <= tau <= 1 for tau in taus)
-        assert metrics["per_state_tau"]["final"][f"layer{layer}"] == taus[-1]
-        assert -1 <= metrics["per_state_tau"]["at_init"][f"layer{layer}"] <= 1
-    assert 0 < metrics["per_state_tau"]["probe_states_per_task"] <= config.probe_states  # all, if fewer
+        taus = {v: [float(row.split("\t")[columns.index(f"per_state_tau_{v}_layer{layer}")]) for row in rows]
+                for v in ("a", "b")}
+        for variant, values in taus.items():
+            key = f"per_state_tau_{variant}_layer{layer}"
+            assert all(-1 <= tau <= 1 for tau in values)
+            assert metrics["per_state_tau"]["final"][key] == values[-1]
+            assert -1 <= metrics["per_state_tau"]["at_init"][key] <= 1
+        assert all(abs(a) <= abs(b) + 1e-12 for a, b in zip(taus["a"], taus["b"]))
+    assert metrics["per_state_tau"]["probe_states_per_task"] == config.probe_states
+    assert metrics["per_state_tau"]["probe_source"] == "offline" and len(metrics["per_state_tau"]["probe_sha256"]) == 64
     loaded = load_student(tmp_path / "student.pt")
     assert loaded.tasks == ["stand", "walk"] and loaded.config == config
     assert loaded.checkpoint["states"][0]["source"] == source
@@ -235,10 +268,60 @@ def test_probe_states_zero_logs_no_tau_and_leaves_training_unchanged(tiny_teache
     a = distill_student(sources, with_probe, SCHEDULE, 50, 0, 0, _paths(tmp_path / "a"))
     b = distill_student(sources, without, SCHEDULE, 50, 0, 0, _paths(tmp_path / "b"))
     assert "per_state_tau" in a and "per_state_tau" not in b
-    assert "per_state_tau_layer1" not in (tmp_path / "b" / "curve.tsv").read_text()
+    assert "per_state_tau" not in (tmp_path / "b" / "curve.tsv").read_text()
     state_a = load_student(tmp_path / "a" / "student.pt").student.state_dict()
     state_b = load_student(tmp_path / "b" / "student.pt").student.state_dict()
     assert all(torch.equal(state_a[k], state_b[k]) for k in state_a)  # measuring does not touch training
+
+
+def test_every_student_of_a_pairing_is_measured_on_the_same_probe_states(tiny_teachers, tmp_path):
+    """Probe states of the tau curve depend on neither the loss nor the student seed (nor the states it
+    distils on), so the curves of all students are comparable; evaluation episodes are shared too."""
+    runs = [("mse", 0, "offline"), ("kl", 1, "offline"), ("mse", 1, "online")]
+    records = []
+    for loss, seed, source in runs:
+        actor = "gaussian" if loss == "kl" else "deterministic"
+        config = DistillConfig(loss=loss, student=TINY, batch_size=16, state_source=source,
+                               num_states=60 if source == "online" else 0)
+        records.append(distill_student(_sources(tiny_teachers, actor), config, SCHEDULE, 50, seed, 0,
+                                       _paths(tmp_path / f"{loss}-{seed}-{source}")))
+    hashes = {r["per_state_tau"]["probe_sha256"] for r in records}
+    assert len(hashes) == 1 and None not in hashes
+
+
+def test_visited_probe_source_measures_tau_on_each_evaluations_own_states(tiny_teachers, tmp_path):
+    config = DistillConfig(student=TINY, batch_size=16, probe_source="visited", probe_states=20)
+    metrics = distill_student(_sources(tiny_teachers, "deterministic"), config, SCHEDULE, 50, 0, 0, _paths(tmp_path))
+    tau = metrics["per_state_tau"]
+    assert tau["probe_source"] == "visited" and tau["probe_sha256"] is None
+    assert set(tau["at_init"]) == set(tau["final"]) == {f"per_state_tau_{v}_layer{k}" for v in "ab" for k in (1, 2)}
+    header, *rows = (tmp_path / "curve.tsv").read_text().splitlines()
+    assert "per_state_tau_a_layer2" in header.split("\t") and len(rows) == 2
+    offline = distill_student(_sources(tiny_teachers, "deterministic"), DistillConfig(
+        student=TINY, batch_size=16, probe_states=20), SCHEDULE, 50, 0, 0, _paths(tmp_path / "offline"))
+    assert offline["per_state_tau"]["final"] != tau["final"]  # other states, same student weights
+    a = load_student(tmp_path / "student.pt").student.state_dict()
+    b = load_student(tmp_path / "offline" / "student.pt").student.state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)  # measuring does not touch training
+
+
+def test_a_gaussian_student_can_act_by_its_mean_or_by_seeded_samples(tiny_teachers, tmp_path):
+    config = DistillConfig(loss="kl", student=TINY, batch_size=16)
+    distill_student(_sources(tiny_teachers, "gaussian"), config, SCHEDULE, 50, 0, 0, _paths(tmp_path))
+    loaded = load_student(tmp_path / "student.pt")
+    obs = np.random.default_rng(0).normal(size=(64, 24))
+    mean = loaded.policy("walk")(obs)
+    mu, sigma = loaded.student.distribution(torch.as_tensor(obs, dtype=torch.float32), 1)
+    np.testing.assert_allclose(mean, mu.numpy(), rtol=1e-6)
+    first, again = loaded.policy("walk", sample_seed=5)(obs), loaded.policy("walk", sample_seed=5)(obs)
+    np.testing.assert_array_equal(first, again)
+    assert not np.allclose(first, mean) and np.all(np.abs(first) <= 1)
+    z = (first - mu.numpy()) / sigma.numpy()
+    inside = np.abs(first) < 1  # unclipped samples are N(mu, sigma^2)
+    assert abs(z[inside].mean()) < 0.2 and 0.8 < z[inside].std() < 1.2
+    deterministic = Student(TINY, 24, 6, 2)
+    with pytest.raises(ValueError, match="only a Gaussian"):
+        student_policy(deterministic, 0, torch.device("cpu"), sample_seed=1)
 
 
 def test_distill_rejects_a_teacher_of_the_wrong_kind_or_task(tiny_teachers, tmp_path):

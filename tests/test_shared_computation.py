@@ -23,7 +23,7 @@ from mop_core.shared_computation import (
     untrained_like,
     visited_states,
 )
-from mop_core.structure import hidden_activations, kendall_tau_b, linear_cka
+from mop_core.structure import hidden_activations, kendall_tau, kendall_tau_a, kendall_tau_b, linear_cka
 
 
 def _student(num_tasks: int, seed: int = 0, task_scale: float = 1.0) -> Student:
@@ -47,11 +47,14 @@ def test_a_student_that_ignores_its_task_id_shares_everything():
     record = measure_student(student, ["stand", "walk"], states)
     for layer in ("layer1", "layer2"):
         row = record["pairs"]["stand-walk"][layer]
-        assert row["per_state_tau"]["mean"] == pytest.approx(1.0) and row["per_state_tau"]["sd"] == pytest.approx(0)
-        assert row["per_state_tau"]["states"] == 50  # s ~ D_stand u D_walk
+        for variant in ("a", "b"):
+            stats = row[f"per_state_tau_{variant}"]
+            assert stats["states"] == 50  # s ~ D_stand u D_walk
+        assert row["per_state_tau_b"]["mean"] == pytest.approx(1.0) and row["per_state_tau_b"]["sd"] == pytest.approx(0)
+        assert 0 < row["per_state_tau_a"]["mean"] <= 1.0  # tied zeros lower tau-a only
         assert row["linear_cka"] == pytest.approx(1.0)
     same = measure_student(student, ["stand", "walk"], [states[0], states[0]])
-    assert same["pairs"]["stand-walk"]["layer2"]["average_tau"] == pytest.approx(1.0)
+    assert same["pairs"]["stand-walk"]["layer2"]["average_tau_b"] == pytest.approx(1.0)
 
 
 def test_every_pair_of_three_tasks_follows_the_definitions():
@@ -63,15 +66,18 @@ def test_every_pair_of_three_tasks_follows_the_definitions():
     i, j = 0, 2  # stand-run, layer 2, from the definitions directly
     pooled = torch.cat([states[i], states[j]])
     under_i, under_j = hidden_activations(student, pooled, i)[1], hidden_activations(student, pooled, j)[1]
-    taus = kendall_tau_b(under_i, under_j)
+    taus = kendall_tau(under_i, under_j)
     row = record["pairs"]["stand-run"]["layer2"]
-    assert row["per_state_tau"]["mean"] == pytest.approx(float(taus.nanmean()))
-    assert row["per_state_tau"]["undefined"] == int(taus.isnan().sum())
+    for variant in ("a", "b"):
+        stats = row[f"per_state_tau_{variant}"]
+        assert stats["mean"] == pytest.approx(float(taus[variant].nanmean()))
+        assert stats["undefined"] == int(taus[variant].isnan().sum())
     assert row["linear_cka"] == pytest.approx(linear_cka(under_i, under_j))
     mean_i = hidden_activations(student, states[i], i)[1].mean(0)
     mean_j = hidden_activations(student, states[j], j)[1].mean(0)
-    assert row["average_tau"] == pytest.approx(float(kendall_tau_b(mean_i, mean_j)))
-    assert row["per_state_tau"]["mean"] < 0.99  # the task id changes the ranking
+    assert row["average_tau_b"] == pytest.approx(float(kendall_tau_b(mean_i, mean_j)))
+    assert row["average_tau_a"] == pytest.approx(float(kendall_tau_a(mean_i, mean_j)))
+    assert row["per_state_tau_b"]["mean"] < 0.99  # the task id changes the ranking
     zero = record["zero_fraction"]["walk"]["layer1"]
     assert zero == pytest.approx(float((hidden_activations(student, states[1], 1)[0] == 0).double().mean()))
 
@@ -82,9 +88,12 @@ def test_group_summary_is_the_mean_and_sd_over_students():
     summary = summarise_students(records)
     assert summary["students"] == 2
     row = summary["pairs"]["stand-walk"]["layer1"]
-    values = [r["pairs"]["stand-walk"]["layer1"]["average_tau"] for r in records]
-    assert row["average_tau"] == pytest.approx(np.mean(values))
-    assert row["average_tau_seed_sd"] == pytest.approx(np.std(values))
+    for key in ("average_tau_a", "average_tau_b", "linear_cka"):
+        values = [r["pairs"]["stand-walk"]["layer1"][key] for r in records]
+        assert row[key] == pytest.approx(np.mean(values))
+        assert row[f"{key}_seed_sd"] == pytest.approx(np.std(values))
+    values = [r["pairs"]["stand-walk"]["layer1"]["per_state_tau_a"]["mean"] for r in records]
+    assert row["per_state_tau_a_mean"] == pytest.approx(np.mean(values))
 
 
 def test_untrained_copy_has_the_same_shape_fresh_weights_and_leaves_the_student_alone():

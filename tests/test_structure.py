@@ -12,6 +12,8 @@ from mop_core.distill.student import Student, StudentConfig
 from mop_core.structure import (
     average_comparison,
     hidden_activations,
+    kendall_tau,
+    kendall_tau_a,
     kendall_tau_b,
     linear_cka,
     per_state_comparison,
@@ -91,17 +93,46 @@ def test_per_state_and_average_paths_on_a_network_with_known_overlap():
     obs = torch.rand(10, 3) + 0.1
     shared = _two_task_student(torch.zeros(6, 2))  # the task id changes nothing: full overlap
     (layer,) = per_state_comparison(shared, obs, own_task=0)
-    torch.testing.assert_close(layer[1], torch.ones(10, dtype=torch.float64))
+    torch.testing.assert_close(layer[1]["b"], torch.ones(10, dtype=torch.float64))
     # a task id that dominates the state: activations follow relu(b_t), a known ranking per task
-    b0 = torch.tensor([50.0, 40.0, 30.0, 20.0, 10.0, -10.0])
+    b0 = torch.tensor([50.0, 40.0, 30.0, 20.0, -5.0, -10.0])
     b1 = torch.tensor([-10.0, 10.0, 20.0, 30.0, 40.0, 50.0])
     split = _two_task_student(torch.stack([b0, b1], 1))
     (layer,) = per_state_comparison(split, obs, own_task=0)
-    expected = kendall_tau_b(torch.relu(b0), torch.relu(b1)).item()
-    assert expected < -0.5
-    torch.testing.assert_close(layer[1], torch.full((10,), expected, dtype=torch.float64))
-    assert per_state_tau_by_layer(shared, [obs, obs]) == pytest.approx([1.0])
-    assert per_state_tau_by_layer(split, [obs, obs[:4]]) == pytest.approx([expected])
+    expected = {"a": kendall_tau_a(torch.relu(b0), torch.relu(b1)).item(),
+                "b": kendall_tau_b(torch.relu(b0), torch.relu(b1)).item()}
+    assert expected["b"] < -0.5 and abs(expected["a"]) < abs(expected["b"])  # two zeros of b0 tie
+    for variant in ("a", "b"):
+        torch.testing.assert_close(layer[1][variant], torch.full((10,), expected[variant], dtype=torch.float64))
+    assert per_state_tau_by_layer(shared, [obs, obs])["b"] == pytest.approx([1.0])
+    assert per_state_tau_by_layer(split, [obs, obs[:4]]) == {"a": pytest.approx([expected["a"]]),
+                                                             "b": pytest.approx([expected["b"]])}
     means = [[hidden_activations(split, obs, t)[0].mean(0)] for t in (0, 1)]
     (tau,) = average_comparison(means)
-    assert tau[0, 0] == 1 and tau[0, 1] == tau[1, 0] == pytest.approx(expected)
+    for variant in ("a", "b"):
+        assert tau[variant][0, 0] == 1 and tau[variant][0, 1] == tau[variant][1, 0] == pytest.approx(expected[variant])
+
+
+def _brute_force_tau_a(x: list[float], y: list[float]) -> float:
+    """The thesis's formula 2 (C - D) / (N (N - 1)), pair by pair (ties count as neither)."""
+    n, score = len(x), 0
+    for i in range(n):
+        for j in range(i + 1, n):
+            score += np.sign(x[i] - x[j]) * np.sign(y[i] - y[j])
+    return 2 * score / (n * (n - 1))
+
+
+@pytest.mark.parametrize("tied", [False, True])
+def test_tau_a_equals_the_thesis_formula_pair_by_pair(tied):
+    rng = np.random.default_rng(1)
+    x, y = rng.normal(size=(6, 30)), rng.normal(size=(6, 30))
+    if tied:  # ReLU-like: many exact zeros
+        x, y = np.maximum(x, 0), np.maximum(x + 0.5 * y, 0)
+    ours = kendall_tau_a(torch.tensor(x), torch.tensor(y), chunk=4).numpy()
+    expected = [_brute_force_tau_a(list(a), list(b)) for a, b in zip(x, y)]
+    np.testing.assert_allclose(ours, expected, rtol=0, atol=1e-12)
+    both = kendall_tau(torch.tensor(x), torch.tensor(y))
+    assert torch.all(both["a"].abs() <= both["b"].abs() + 1e-12)
+    if not tied:  # without ties the two variants agree
+        torch.testing.assert_close(both["a"], both["b"])
+    assert kendall_tau_a(torch.ones(5), torch.arange(5.0)).item() == 0.0  # defined for a constant vector

@@ -1,9 +1,11 @@
-"""The distillation learner: one gradient step on the student per call (thesis 4.2, 5.1.3).
+"""The distillation learner: one update of the student per call (thesis 4.2, 5.1.3).
 
-Each step draws ``batch_size`` states per task (uniformly, with replacement) from that task's
-:class:`~mop_core.distill.states.TaskStates`, runs the student once on all ``m * batch_size`` rows
-(state + one-hot task id) and minimises the chosen loss averaged over the rows, i.e.
-``1/m sum_i E_{s~D_i}[loss_i(s)]`` as in the thesis. Teacher actions and Gaussian parameters are
+Each update draws ``batch_size`` states per task (uniformly, with replacement) from that task's
+:class:`~mop_core.distill.states.TaskStates`. By default it runs the student once on all
+``m * batch_size`` rows (state + one-hot task id) and takes one Adam step on the loss averaged over
+the rows, i.e. ``1/m sum_i E_{s~D_i}[loss_i(s)]`` as in the thesis. With ``step_per_task`` it takes
+one Adam step per task instead, on that task's rows only, in task order (the thesis's reference code:
+m optimiser steps per update). Teacher actions and Gaussian parameters are
 read from the cache; the Q loss evaluates each task's frozen teacher critic ensemble at the
 student's actions (gradients flow through the critic into the student; the critic's weights are
 frozen).
@@ -25,6 +27,7 @@ from mop_core.distill.student import Student, StudentConfig
 from mop_core.nn import EnsembleCritic
 
 LR_SCHEDULES = ("constant", "cosine")
+PROBE_SOURCES = ("offline", "visited")
 
 
 def learning_rate_at(config: "DistillConfig", step: int, total_steps: int) -> float:
@@ -47,6 +50,9 @@ class DistillConfig:
     state_source: str = "offline"  # offline: the task's dataset; online: states the teacher visits
     num_states: int = 0  # states per task; 0 = the whole offline dataset (online: must be > 0)
     probe_states: int = 256  # states per task for the per-state tau curve (thesis 6.3.1, Fig. 6.4b); 0 = off
+    probe_source: str = "offline"  # offline: fixed dataset states, the same for every student; visited: states
+    #                                the student visits in each evaluation (the reference code's choice)
+    step_per_task: bool = False  # one Adam step per task per update (reference code) instead of one over all tasks
 
     def __post_init__(self) -> None:
         require(self.loss in LOSSES, "loss", f"one of {LOSSES}", self.loss)
@@ -57,6 +63,7 @@ class DistillConfig:
         require(self.batch_size >= 1, "batch_size", "a positive integer", self.batch_size)
         require(self.probe_states >= 0, "probe_states", "a non-negative integer (0 = no tau curve)",
                 self.probe_states)
+        require(self.probe_source in PROBE_SOURCES, "probe_source", f"one of {PROBE_SOURCES}", self.probe_source)
         require(self.num_states >= 0, "num_states", "a non-negative integer (0 = the whole dataset)",
                 self.num_states)
         require(self.state_source == "offline" or self.num_states > 0, "num_states",
@@ -84,19 +91,23 @@ class Distiller:
         self.generator = torch.Generator().manual_seed(seed)
         self.updates = 0
 
-    def _rows(self, batch_size: int) -> list[torch.Tensor]:
-        return [torch.randint(len(t), (batch_size,), generator=self.generator).to(self.device) for t in self.targets]
+    def _rows(self, task: int, batch_size: int) -> torch.Tensor:
+        return torch.randint(len(self.targets[task]), (batch_size,), generator=self.generator).to(self.device)
 
-    def loss(self, rows: list[torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
-        """The loss on the given state indices (one index tensor per task) and per-task metrics."""
-        cfg, m = self.config, len(self.targets)
-        obs = torch.cat([t.states[r] for t, r in zip(self.targets, rows)])
-        teacher_actions = torch.cat([t.teacher_actions[r] for t, r in zip(self.targets, rows)])
-        task_ids = torch.arange(m, device=self.device).repeat_interleave(torch.tensor([len(r) for r in rows],
-                                                                                       device=self.device))
+    def loss(self, rows: Sequence[torch.Tensor], tasks: Sequence[int] | None = None
+             ) -> tuple[torch.Tensor, dict[str, float]]:
+        """The loss on the given state indices (``rows[k]`` of task ``tasks[k]``; default: one index
+        tensor per task, in task order) and per-task metrics."""
+        cfg = self.config
+        tasks = list(range(len(self.targets))) if tasks is None else list(tasks)
+        targets = [self.targets[t] for t in tasks]
+        sizes = [len(r) for r in rows]
+        obs = torch.cat([t.states[r] for t, r in zip(targets, rows)])
+        teacher_actions = torch.cat([t.teacher_actions[r] for t, r in zip(targets, rows)])
+        task_ids = torch.tensor(tasks, device=self.device).repeat_interleave(torch.tensor(sizes, device=self.device))
         if cfg.loss == "kl":
             mu, std = self.student.distribution(obs, task_ids)
-            teacher_std = torch.cat([t.teacher_std[r] for t, r in zip(self.targets, rows)])
+            teacher_std = torch.cat([t.teacher_std[r] for t, r in zip(targets, rows)])
             per_state = gaussian_kl_per_state(mu, std, teacher_actions, teacher_std)
             actions = mu
         else:
@@ -104,28 +115,38 @@ class Distiller:
             if cfg.loss == "mse":
                 per_state = mse_per_state(actions, teacher_actions)
             else:
-                per_state = torch.cat([q_per_state(critic(o, a), cfg.q_reduction) for critic, o, a in
-                                       zip(self.critics, obs.split([len(r) for r in rows]),
-                                           actions.split([len(r) for r in rows]))])
+                per_state = torch.cat([q_per_state(self.critics[t](o, a), cfg.q_reduction) for t, o, a in
+                                       zip(tasks, obs.split(sizes), actions.split(sizes))])
         loss = per_state.mean()
         metrics = {"loss": loss.item()}
         with torch.no_grad():
             action_mse = mse_per_state(actions, teacher_actions)
-            for task, part, mse in zip(self.tasks, per_state.split([len(r) for r in rows]),
-                                       action_mse.split([len(r) for r in rows])):
-                metrics[f"loss_{task}"] = part.mean().item()
-                metrics[f"action_mse_{task}"] = mse.mean().item()
+            for t, part, mse in zip(tasks, per_state.split(sizes), action_mse.split(sizes)):
+                metrics[f"loss_{self.tasks[t]}"] = part.mean().item()
+                metrics[f"action_mse_{self.tasks[t]}"] = mse.mean().item()
         return loss, metrics
 
-    def update(self) -> dict[str, float]:
-        loss, metrics = self.loss(self._rows(self.config.batch_size))
-        lr = learning_rate_at(self.config, self.updates, self.total_steps)
-        for group in self.optimizer.param_groups:
-            group["lr"] = lr
-        metrics["learning_rate"] = lr
+    def _step(self, loss: torch.Tensor) -> None:
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
+
+    def update(self) -> dict[str, float]:
+        lr = learning_rate_at(self.config, self.updates, self.total_steps)
+        for group in self.optimizer.param_groups:
+            group["lr"] = lr
+        tasks = range(len(self.targets))
+        if self.config.step_per_task:
+            metrics = {}
+            for t in tasks:
+                loss, task_metrics = self.loss([self._rows(t, self.config.batch_size)], [t])
+                self._step(loss)
+                metrics |= {k: v for k, v in task_metrics.items() if k != "loss"}
+            metrics["loss"] = sum(metrics[f"loss_{task}"] for task in self.tasks) / len(self.tasks)
+        else:
+            loss, metrics = self.loss([self._rows(t, self.config.batch_size) for t in tasks])
+            self._step(loss)
+        metrics["learning_rate"] = lr
         self.updates += 1
         return metrics
 

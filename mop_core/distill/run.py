@@ -9,6 +9,7 @@ teachers it learned from) and a metrics record (return per task next to the teac
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
@@ -23,7 +24,8 @@ from mop_core.distill.distiller import DistillConfig, Distiller
 from mop_core.distill.states import TaskStates, offline_states, online_states, task_states
 from mop_core.distill.student import Student
 from mop_core.envs import ACT_DIM, OBS_DIM
-from mop_core.rollout import episode_returns
+from mop_core.nn import with_task_id
+from mop_core.rollout import episode_returns, returns_and_states
 from mop_core.runtime import derive_seeds
 from mop_core.structure import per_state_tau_by_layer
 from mop_core.tasks import check_task_list
@@ -80,25 +82,47 @@ def build_states(sources: StudentSources, teachers: Sequence[Teacher], config: D
     return result
 
 
-def probe_states(targets: Sequence[TaskStates], per_task: int, seed: int) -> list[torch.Tensor]:
-    """A fixed random subset (``per_task`` states, without replacement) of each task's distillation
-    states, on which the per-state tau curve is measured during training; [] when ``per_task`` is 0."""
-    if per_task == 0:
-        return []
-    generator = torch.Generator().manual_seed(seed)
-    subsets = []
-    for target in targets:
-        index = torch.randperm(len(target.states), generator=generator)[:per_task]
-        subsets.append(target.states[index.to(target.states.device)])
-    return subsets
+def offline_probes(sources: StudentSources, per_task: int, seed: int) -> list[torch.Tensor]:
+    """``per_task`` states of each task's offline dataset (drawn without replacement with ``seed``), on
+    which the per-state tau curve is measured during training (``probe_source: offline``). The seed
+    depends on the study and the teachers' tasks and levels only, so every student of a pairing -
+    whatever its loss, seed or distillation states - is measured on the same states."""
+    return [torch.as_tensor(offline_states(dataset, per_task, np.random.default_rng([seed, i])))
+            for i, dataset in enumerate(sources.datasets)]
 
 
-def student_policy(student: Student, task_index: int, device: torch.device) -> Callable[[np.ndarray], np.ndarray]:
-    """A numpy policy of the student for one task id (Gaussian students act with their mean)."""
+def visited_probes(visited: Sequence[np.ndarray], per_task: int, seed: int) -> list[torch.Tensor]:
+    """``per_task`` of the states the student visited on each task in one evaluation (``probe_source:
+    visited``, as the thesis's reference code measured), drawn without replacement with ``seed``."""
+    rng = np.random.default_rng(seed)
+    return [torch.as_tensor(states[np.sort(rng.choice(len(states), size=min(per_task, len(states)),
+                                                      replace=False))]) for states in visited]
+
+
+def tau_columns(taus: dict[str, list[float]]) -> dict[str, float]:
+    """``{"a": [..], "b": [..]}`` per layer -> curve columns ``per_state_tau_<a|b>_layer<k>``."""
+    return {f"per_state_tau_{variant}_layer{k + 1}": tau for variant, layers in taus.items()
+            for k, tau in enumerate(layers)}
+
+
+def student_policy(student: Student, task_index: int, device: torch.device, sample_seed: int | None = None
+                   ) -> Callable[[np.ndarray], np.ndarray]:
+    """A numpy policy of the student for one task id. A Gaussian student acts with its mean, or, with
+    ``sample_seed``, with samples ``clip(mu + sigma eps, -1, 1)`` from a generator of that seed."""
+    generator = None
+    if sample_seed is not None:
+        if not student.gaussian:
+            raise ValueError("sample_seed: only a Gaussian (KL) student has actions to sample")
+        generator = torch.Generator(device).manual_seed(sample_seed)
+
     @torch.no_grad()
     def policy(obs: np.ndarray) -> np.ndarray:
         x = torch.as_tensor(np.asarray(obs, dtype=np.float32), device=device)
-        return student(x, task_index).cpu().numpy().astype(np.float64)
+        if generator is None:
+            action = student(x, task_index)
+        else:
+            action = student.actor.rsample(with_task_id(x, task_index, student.num_tasks), generator)[0]
+        return action.cpu().numpy().astype(np.float64)
     return policy
 
 
@@ -112,25 +136,38 @@ def distill_student(sources: StudentSources, config: DistillConfig, schedule: Tr
     device = torch.device(device)
     teachers = load_teachers(sources, config.loss)
     levels = [t.level for t in teachers]
-    seeds = derive_seeds([study_seed, "distill", *sources.tasks, *levels, config.loss, seed],
-                         ("agent", "states", "eval", "final_eval", "probe"))
+    # What differs between students of a pairing (initialisation, distillation states) derives from the
+    # student seed; what every student of the pairing must share (evaluation episodes, probe states)
+    # does not depend on the loss or the seed.
+    seeds = derive_seeds([study_seed, "distill", *sources.tasks, *levels, seed], ("agent", "states"))
+    seeds |= derive_seeds([study_seed, "distill", *sources.tasks, *levels], ("eval", "final_eval", "probe"))
     targets = build_states(sources, teachers, config, episode_length, seeds["states"], schedule.rollout_envs, device)
     critics = [t.critic for t in teachers] if config.loss == "q" else None
     distiller = Distiller(config, targets, OBS_DIM, ACT_DIM, seeds["agent"], critics, device, schedule.steps)
     student = distiller.student
     policies = [student_policy(student, i, device) for i in range(len(sources.tasks))]
-    probes = probe_states(targets, config.probe_states, seeds["probe"]) if len(targets) > 1 else []
-    tau_at_init = per_state_tau_by_layer(student, probes) if probes else []
+    track_tau = config.probe_states > 0 and len(sources.tasks) > 1
+    fixed_probes = (offline_probes(sources, config.probe_states, seeds["probe"])
+                    if track_tau and config.probe_source == "offline" else [])
+
+    def probe_tau(visited: Sequence[np.ndarray]) -> dict[str, float]:
+        probes = fixed_probes or visited_probes(visited, config.probe_states, seeds["probe"])
+        return tau_columns(per_state_tau_by_layer(student, [p.to(device) for p in probes]))
 
     def evaluate(eval_seeds: list[int]) -> dict[str, float]:
-        row = {}
+        row, visited = {}, []
         for task, policy in zip(sources.tasks, policies):
-            stats = returns_summary(episode_returns(policy, task, eval_seeds, episode_length, schedule.rollout_envs))
-            row |= {f"{key}_{task}": value for key, value in stats.items()}
+            returns, states = returns_and_states(policy, task, eval_seeds, episode_length, schedule.rollout_envs)
+            row |= {f"{key}_{task}": value for key, value in returns_summary(returns).items()}
+            visited.append(states)
         row["return_mean"] = float(np.mean([row[f"return_mean_{task}"] for task in sources.tasks]))
-        if probes:
-            row |= {f"per_state_tau_layer{k + 1}": tau for k, tau in enumerate(per_state_tau_by_layer(student, probes))}
-        return row
+        return row | (probe_tau(visited) if track_tau else {})
+
+    tau_at_init: dict[str, float] = {}
+    if track_tau:  # the untrained student, measured the way the curve is (visited: its own first episodes)
+        tau_at_init = probe_tau([]) if fixed_probes else {
+            k: v for k, v in evaluate([seeds["eval"] + i for i in range(schedule.eval_episodes)]).items()
+            if k.startswith("per_state_tau_")}
 
     fingerprint = run_fingerprint({"tasks": sources.tasks, "config": to_dict(config), "schedule": to_dict(schedule),
                                    "seed": seed, "study_seed": study_seed,
@@ -143,11 +180,13 @@ def distill_student(sources: StudentSources, config: DistillConfig, schedule: Tr
                      "gradient_steps": schedule.steps, "train_seconds": round(seconds, 1),
                      "steps_per_second": round(schedule.steps / max(seconds, 1e-9), 1),
                      "resumed_from_step": resumed_from}
-    if probes:
-        layers = range(1, len(tau_at_init) + 1)
-        metrics["per_state_tau"] = {"probe_states_per_task": len(probes[0]),
-                                    "at_init": {f"layer{k}": tau for k, tau in zip(layers, tau_at_init)},
-                                    "final": {f"layer{k}": float(curve[-1][f"per_state_tau_layer{k}"]) for k in layers}}
+    if track_tau:
+        metrics["per_state_tau"] = {
+            "probe_source": config.probe_source, "probe_states_per_task": config.probe_states,
+            "probe_sha256": (hashlib.sha256(torch.cat(fixed_probes).numpy().tobytes()).hexdigest()
+                             if fixed_probes else None),
+            "at_init": tau_at_init,
+            "final": {key: float(curve[-1][key]) for key in tau_at_init}}
     for task, policy, teacher in zip(sources.tasks, policies, teachers):
         final = episode_returns(policy, task, final_seeds, episode_length, schedule.rollout_envs)
         teacher_return = float(teacher.metrics.get("return_mean", float("nan")))
@@ -178,8 +217,8 @@ class LoadedStudent:
     config: DistillConfig
     checkpoint: dict
 
-    def policy(self, task: str) -> Callable[[np.ndarray], np.ndarray]:
-        return student_policy(self.student, self.tasks.index(task), torch.device("cpu"))
+    def policy(self, task: str, sample_seed: int | None = None) -> Callable[[np.ndarray], np.ndarray]:
+        return student_policy(self.student, self.tasks.index(task), torch.device("cpu"), sample_seed)
 
 
 def load_student(path: str | Path) -> LoadedStudent:
