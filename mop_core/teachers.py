@@ -130,8 +130,10 @@ def train_multitask(tasks: Sequence[str], sources: Sequence[DataSource], config:
                     progress: bool = False) -> dict:
     """Train the naive multi-task PBRL baseline: one shared actor, a critic per task, tasks alternating.
 
-    ``sources[i]`` is task i's dataset read with task i's rewards. ``schedule.steps`` counts steps
-    per task, so each critic trains as long as a single-task teacher's.
+    ``sources[i]`` is task i's dataset read with task i's rewards. ``schedule`` counts steps *per
+    task*: one step of the loop is one PBRL update of every task in turn (the agent alternates tasks),
+    so each critic trains as long as a single-task teacher's and the learning curve's ``step`` column
+    is on the teachers' axis (thesis Figure 5.3 draws both against per-task steps).
     """
     tasks = check_task_list(tasks, "tasks")
     if len(sources) != len(tasks):
@@ -143,15 +145,15 @@ def train_multitask(tasks: Sequence[str], sources: Sequence[DataSource], config:
     agent = MultiTaskPBRL(config.pbrl, tasks, OBS_DIM, ACT_DIM, seeds["agent"], device)
     sampler = torch.Generator().manual_seed(seeds["sampler"])
     sched = config.schedule
-    per_task = TrainSchedule(**{**to_dict(sched), "steps": sched.steps * len(tasks),
-                                "eval_every": sched.eval_every * len(tasks),
-                                "checkpoint_every": sched.checkpoint_every * len(tasks)})
     policies = [torch_policy(agent.actor, device, i, len(tasks)) for i in range(len(tasks))]
 
     def update() -> dict:
-        task_index = agent.next_task
-        metrics = agent.update(loaded[task_index][0].sample(config.pbrl.batch_size, sampler), task_index)
-        return {f"{key}_{tasks[task_index]}": value for key, value in metrics.items()}
+        metrics = {}
+        for _ in tasks:  # one update per task, in the agent's alternating order
+            task_index = agent.next_task
+            step = agent.update(loaded[task_index][0].sample(config.pbrl.batch_size, sampler), task_index)
+            metrics |= {f"{key}_{tasks[task_index]}": value for key, value in step.items()}
+        return metrics
 
     def evaluate(eval_seeds: list[int]) -> dict[str, float]:
         row = {}
@@ -164,7 +166,7 @@ def train_multitask(tasks: Sequence[str], sources: Sequence[DataSource], config:
 
     fingerprint = run_fingerprint({"tasks": tasks, "config": to_dict(config), "seed": seed, "study_seed": study_seed,
                                 "data": [s["content_sha256"] for _, s in loaded]})
-    curve, seconds, resumed_from = train_loop(agent, update, evaluate, per_task, seeds, sampler, paths, fingerprint,
+    curve, seconds, resumed_from = train_loop(agent, update, evaluate, sched, seeds, sampler, paths, fingerprint,
                                               f"multitask {level}-{seed}", progress)
     final_seeds = [seeds["final_eval"] + i for i in range(sched.final_eval_episodes)]
     metrics: dict = {"tasks": list(tasks), "level": level, "seed": seed, "gradient_steps_per_task": sched.steps,

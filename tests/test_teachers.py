@@ -65,6 +65,24 @@ def test_teacher_run_writes_checkpoint_metrics_and_curve(sources, tmp_path, acto
     assert teacher.act(obs.numpy()).shape == (5, 6)
 
 
+def test_a_trained_gaussian_teachers_spread_is_inside_its_bounds(sources, tmp_path):
+    """On its own dataset's states no sigma sits at either bound of log sigma (with a hard clamp about
+    two thirds of them sat at the upper bound from initialisation on, and the entropy term could not
+    move them), and the logged entropy lies strictly between the bounds' entropies."""
+    paths = _paths(tmp_path)
+    train_teacher("stand", sources["stand"], _config("gaussian"), 0, 0, paths)
+    teacher = load_teacher(paths.checkpoint)
+    states, _ = load_source(sources["stand"], 50)
+    _, std = teacher.actor.distribution(states.observations)
+    log_std = std.log()
+    low, high = teacher.config.log_std_min, teacher.config.log_std_max
+    assert (log_std - low).min() > 1e-3 and (high - log_std).min() > 1e-3
+    header, *rows = paths.curve.read_text().splitlines()
+    entropy = float(rows[-1].split("\t")[header.split("\t").index("entropy")])
+    per_dim = 0.5 * np.log(2 * np.pi * np.e)
+    assert 6 * (per_dim + low) < entropy < 6 * (per_dim + high)
+
+
 def test_interrupted_run_resumes_to_the_same_weights(sources, tmp_path, monkeypatch):
     reference = train_teacher("stand", sources["stand"], _config(), 0, 0, _paths(tmp_path / "a"))
     ref_state = torch.load(tmp_path / "a" / "teacher.pt", weights_only=False)
@@ -123,6 +141,10 @@ def test_multitask_critics_see_only_their_own_tasks_rewards(sources, tmp_path, m
     metrics = train_multitask(["stand", "walk"], [sources["stand"], sources["walk"]], _config(schedule=schedule),
                               0, 0, _paths(tmp_path))
     assert set(metrics) >= {"stand", "walk"} and metrics["gradient_steps_per_task"] == 10
+    # the learning curve is on the teachers' axis: steps per task, not updates over both tasks (Figure 5.3)
+    header, *rows = (tmp_path / "curve.tsv").read_text().splitlines()
+    assert [int(row.split("\t")[0]) for row in rows] == [10]
+    assert {"critic_loss_in_stand", "critic_loss_in_walk"} <= set(header.split("\t"))
     stand_rewards = set(load_source(sources["stand"], 50)[0].rewards.tolist())
     walk_rewards = set(load_source(sources["walk"], 50)[0].rewards.tolist())
     assert len(seen) == 2
