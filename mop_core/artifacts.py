@@ -5,12 +5,23 @@ from __future__ import annotations
 import hashlib
 import importlib.metadata
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import torch
 
 from mop_core.data import atomic_path
+
+
+@dataclass(frozen=True)
+class RunPaths:
+    """Where a training run writes: the final checkpoint, its metrics, its curve, and the resume file."""
+
+    checkpoint: Path
+    metrics: Path
+    curve: Path
+    resume: Path
 
 
 def state_sha256(state: dict[str, torch.Tensor]) -> str:

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from mop_core.artifacts import load_checkpoint, save_checkpoint
+from mop_core.artifacts import RunPaths, load_checkpoint, save_checkpoint
 from mop_core.config import require
 from mop_core.nn import with_task_id
 
@@ -43,16 +43,6 @@ class TrainSchedule:
         for name in ("steps", "eval_every", "eval_episodes", "final_eval_episodes", "checkpoint_every",
                      "rollout_envs"):
             require(getattr(self, name) > 0, name, "a positive integer", getattr(self, name))
-
-
-@dataclass(frozen=True)
-class RunPaths:
-    """Where a run writes: the final checkpoint, its metrics, its curve, and the resume file."""
-
-    checkpoint: Path
-    metrics: Path
-    curve: Path
-    resume: Path
 
 
 def run_fingerprint(payload: dict) -> str:

@@ -13,8 +13,9 @@ from typing import Any
 
 import yaml
 
-from mop_core.collect import LEVELS
+from mop_core.artifacts import RunPaths
 from mop_core.config import ConfigError, from_mapping, require
+from mop_core.data import LEVELS
 from mop_core.tasks import check_task_list
 
 PARAMS = Path("params.yaml")
@@ -80,11 +81,9 @@ def teacher_name(task: str, level: str, actor: str, seed: int) -> str:
     return f"{task}-{level}-{actor}-{seed}"
 
 
-def run_paths(name: str, family: str = "teachers"):
+def run_paths(name: str, family: str = "teachers") -> RunPaths:
     """Final checkpoint (DVC output), metrics and curve (results/), resume file (not an output:
     ``dvc repro`` deletes outputs before a stage runs, and the resume file must survive that)."""
-    from mop_core.training import RunPaths
-
     return RunPaths(checkpoint=DATA / family / f"{name}.pt", metrics=RESULTS / family / "metrics" / f"{name}.json",
                     curve=RESULTS / family / "curves" / f"{name}.tsv", resume=DATA / "resume" / f"{family}-{name}.pt")
 
