@@ -4,10 +4,11 @@
 stage) into Markdown and draws the learning-curve figures it links. Sections follow the thesis:
 behaviour policies (Table 4.1), teachers vs behaviour (Figure 5.1), naive multi-task vs single-task
 (Figure 5.3), distillation losses (Figure 5.4), student vs teachers per dataset pairing
-(Appendix E), shared computation (Table 6.1, Figures 6.3 and 6.4b), cross-task teachers
-(Table 6.3). Every number comes from the results; a section whose stage or runs are not part of
-the study says so. Learning-curve bands are 95% Student-t intervals over training seeds (none with
-one seed); evaluation intervals are the eval stage's (``ci_unit`` says over what).
+(Appendix E), aggregate scores (IQM, probability of improvement), shared computation (Table 6.1,
+Figures 6.3 and 6.4b), cross-task teachers (Table 6.3). Every number comes from the results; a
+section whose stage or runs are not part of the study says so. Learning-curve bands are 95%
+Student-t intervals over training seeds (none under 3 seeds); evaluation intervals are the eval
+stage's (each cell says its unit and n).
 """
 
 from __future__ import annotations
@@ -17,8 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping, Sequence
 
-from mop_core.evaluation import confidence_interval
 from mop_core.plots import band_curves
+from mop_core.statistics import MIN_SEEDS_FOR_SEED_CI, confidence_interval
 
 
 @dataclass(frozen=True)
@@ -54,24 +55,60 @@ def fmt(value: float | None, digits: int = 1) -> str:
     return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
 
 
+def unit_text(entry: Mapping) -> str:
+    """How many units an interval is over, e.g. 'n=30 episodes', 'n=60 episodes of 2 seeds', 'n=3 seeds'."""
+    if entry.get("ci_unit") == "training_seed":
+        return f"n={entry['n']} seeds"
+    seeds = len(entry.get("seed_means", {}))
+    return f"n={entry['n']} episodes" + (f" of {seeds} seeds" if seeds > 1 else "")
+
+
 def fmt_ci(entry: Mapping | None) -> str:
-    """``mean [low, high]`` of an eval-stage group (``mean`` alone when the interval is undefined)."""
+    """``mean [low, high] (n=..)`` of an eval-stage group (``mean (n=1)`` when the interval is undefined)."""
     if entry is None:
         return "not evaluated"
     if entry.get("ci_low") is None:
-        return fmt(entry["mean"])
-    return f"{fmt(entry['mean'])} [{fmt(entry['ci_low'])}, {fmt(entry['ci_high'])}]"
+        return f"{fmt(entry['mean'])} (n={entry.get('n', 1)})"
+    return f"{fmt(entry['mean'])} [{fmt(entry['ci_low'])}, {fmt(entry['ci_high'])}] ({unit_text(entry)})"
 
 
-def ci_caption(entries: Sequence[Mapping]) -> str:
-    """Which units the intervals of ``entries`` are over, e.g. '2 training seeds' / '3 eval seeds'."""
-    units = sorted({(e["n"], e["ci_unit"].replace("_", " ")) for e in entries if e})
-    return ", ".join(f"{n} {unit}s" for n, unit in units) or "no evaluation"
+def fmt_normalised(entry: Mapping | None) -> str:
+    """The same mean and interval as normalised scores (100 = published expert, 0 = random)."""
+    z = (entry or {}).get("normalised")
+    if not z:
+        return "n/a"
+    if z.get("ci_low") is None:
+        return fmt(z["mean"])
+    return f"{fmt(z['mean'])} [{fmt(z['ci_low'])}, {fmt(z['ci_high'])}]"
+
+
+def seed_means_text(entry: Mapping | None) -> str:
+    """Each training seed's mean return ('426.0 / 426.2'), or '-' for a policy trained once."""
+    means = (entry or {}).get("seed_means", {})
+    return " / ".join(fmt(v) for v in means.values()) if len(means) > 1 else "-"
+
+
+def ci_caption(entries: Sequence[Mapping | None]) -> str:
+    """What the 95% intervals of ``entries`` are over, in words, with their n."""
+    parts = []
+    episodes = sorted({(e["n"], len(e.get("seed_means", {})) or 1) for e in entries
+                       if e and e.get("ci_unit") == "episode"})
+    for n, seeds in episodes:
+        parts.append(f"{n} evaluation episodes of one trained policy" if seeds == 1 else
+                     f"{n} evaluation episodes pooled over {seeds} training seeds (fewer than 3 seeds: no interval "
+                     "over seeds; the seed means are listed)")
+    for n in sorted({e["n"] for e in entries if e and e.get("ci_unit") == "training_seed"}):
+        parts.append(f"the means of {n} training seeds")
+    if not parts:
+        return "no evaluation"
+    return "Student-t 95% intervals over " + "; over ".join(parts)
 
 
 def seeds_text(n: int) -> str:
-    """'1 seed, no interval' / '3 seeds, 95% CI': how a learning curve of n runs is drawn."""
-    return "1 seed, no interval" if n == 1 else f"{n} seeds, 95% CI"
+    """'1 seed, no interval' / '2 seeds, no interval' / '3 seeds, 95% CI': how a curve of n runs is drawn."""
+    if n < MIN_SEEDS_FOR_SEED_CI:
+        return f"{n} seed{'s' if n > 1 else ''}, no interval"
+    return f"{n} seeds, 95% CI"
 
 
 def curve_caption(groups: Sequence[Sequence[Run]]) -> str:
@@ -94,7 +131,7 @@ def seed_band(curves: Sequence[Sequence[Mapping[str, str]]], key: str) -> dict |
     steps = sorted(set.intersection(*(set(run) for run in per_run)))
     stats = [confidence_interval([run[s] for run in per_run]) for s in steps]
     band = {"step": steps, "mean": [s["mean"] for s in stats], "ci_low": None, "ci_high": None}
-    if len(per_run) > 1:
+    if len(per_run) >= MIN_SEEDS_FOR_SEED_CI:  # a t-interval over 2 seeds (t = 12.7) is no interval
         band["ci_low"], band["ci_high"] = [s["ci_low"] for s in stats], [s["ci_high"] for s in stats]
     return band
 
@@ -116,6 +153,17 @@ def not_run(what: str, how: str) -> str:
     return f"*Not part of this run: {what}. {how}*"
 
 
+def normalisation_text(results: StudyResults) -> str:
+    """How returns become normalised scores in this run (R_random measured, R_expert published)."""
+    norms = (results.evaluation or {}).get("normalisation")
+    if not norms:
+        return ""
+    parts = [f"{task}: R_random {fmt(n['random_return'])} ({n['random_episodes']} uniformly random episodes, collect "
+             f"stage), R_expert {fmt(n['expert_return'])}" for task, n in norms.items()]
+    return ("Normalised score = 100 (R - R_random) / (R_expert - R_random), R_expert the published expert level "
+            f"({next(iter(norms.values()))['expert_source']}): " + "; ".join(parts) + ".")
+
+
 # ---- sections --------------------------------------------------------------------------------------
 def header(results: StudyResults) -> str:
     s = results.settings
@@ -123,7 +171,13 @@ def header(results: StudyResults) -> str:
              f"Tasks: {', '.join(results.tasks)}. Teacher levels: {', '.join(results.levels)}. "
              f"Profile budgets: {s.get('summary', 'see params.yaml')}.", "",
              "Every number below is read from this run's result files (results/); figures are PNG files next "
-             "to them. Section titles name the thesis table or figure each one reproduces.", ""]
+             "to them. Section titles name the thesis table or figure each one reproduces.", "",
+             "**Intervals.** Every eval interval is a Student-t 95% interval and says its unit and n: over the "
+             "evaluation episodes of one trained policy (evaluation noise only: it says nothing about another "
+             "training seed), over the pooled episodes of a group with fewer than 3 training seeds (the seed means "
+             "are listed beside it), or over the means of >= 3 training seeds. Aggregates (section 6) are "
+             "stratified-bootstrap intervals over runs x episodes. Learning-curve bands are over training seeds "
+             "and drawn only with >= 3 seeds.", ""]
     timing = s.get("timing")
     if timing:
         lines += ["Stage times (s): " + ", ".join(f"{k} {fmt(v, 0)}" for k, v in timing.items()), ""]
@@ -139,12 +193,14 @@ def behaviour_section(results: StudyResults) -> str:
     for task in results.tasks:
         for level in ("medium", "expert"):
             c = results.collect.get(task, {})
+            entry = eval_entry(results, task, f"behaviour_{level}")
             rows.append([f"{task} ({level})", c.get(f"{level}_gradient_steps", "n/a"),
-                         fmt(c.get(f"{level}_return")), fmt_ci(eval_entry(results, task, f"behaviour_{level}"))])
+                         fmt(c.get(f"{level}_return")), fmt_ci(entry), fmt_normalised(entry)])
     evals = [eval_entry(results, t, f"behaviour_{lv}") for t in results.tasks for lv in ("medium", "expert")]
     out += [table(["policy", "gradient steps", f"final return (collect, {snapshot_episodes} episodes)",
-                   "eval return [95% CI]"], rows), "",
-            f"Eval column: the eval stage's common episode seeds; intervals over {ci_caption(evals)}.", ""]
+                   "eval return [95% CI]", "normalised [95% CI]"], rows), "",
+            f"Eval columns: the eval stage's common episode seeds; {ci_caption(evals)}. {normalisation_text(results)}",
+            ""]
     rows = []
     for task in results.tasks:
         for level in ("expert", "medium", "medium_replay"):
@@ -177,8 +233,10 @@ def teachers_section(results: StudyResults, figure_dir: Path, link_prefix: str) 
         entry = eval_entry(results, task, f"teacher_{level}_{actor}")
         trained = [r.metrics.get("return_mean", float("nan")) for r in runs]
         ratio = entry["mean"] / dataset if entry and dataset else None
-        rows.append([task, level, actor, len(runs), fmt(sum(trained) / len(trained)), fmt_ci(entry), fmt(dataset),
-                     fmt(ratio, 2)])
+        entropy = [float(r.curve[-1]["entropy"]) for r in runs if r.curve and "entropy" in r.curve[-1]]
+        rows.append([task, level, actor, len(runs), fmt(sum(trained) / len(trained)), fmt_ci(entry),
+                     fmt_normalised(entry), fmt(dataset), fmt(ratio, 2),
+                     fmt(sum(entropy) / len(entropy), 2) if entropy else "-"])
     name = "teachers.png"
     band_curves(figure_dir / name, panels, references, "episode return",
                 "PBRL teachers: evaluation return during training (dashed: dataset mean)")
@@ -186,9 +244,11 @@ def teachers_section(results: StudyResults, figure_dir: Path, link_prefix: str) 
             f"{curve_caption(list(groups.values()))}; dashed lines: mean episode return of the dataset the teacher "
             "learned from.", "",
             table(["task", "level", "actor", "seeds", "final return (training-end eval)", "eval return [95% CI]",
-                   "dataset return", "eval / dataset"], rows), "",
-            f"Eval intervals over {ci_caption([eval_entry(results, r[0], f'teacher_{r[1]}_{r[2]}') for r in rows])}.",
-            ""]
+                   "normalised [95% CI]", "dataset return", "eval / dataset", "final entropy (nats)"], rows), "",
+            f"Eval columns: {ci_caption([eval_entry(results, r[0], f'teacher_{r[1]}_{r[2]}') for r in rows])}. "
+            "Final entropy: the Gaussian actor's mean entropy on its training batches over the last evaluation "
+            "interval; its log sigma is bounded smoothly to (log_std_min, log_std_max), so the entropy lies "
+            "strictly between the bounds' values (at log sigma = 0 on all 6 dimensions: 8.51 nats).", ""]
     return "\n".join(out)
 
 
@@ -213,16 +273,66 @@ def multitask_section(results: StudyResults, figure_dir: Path, link_prefix: str)
                 drawn.append(single)
             mt, st = eval_entry(results, task, f"multitask_{level}"), eval_entry(results, task,
                                                                                  f"teacher_{level}_deterministic")
-            rows.append([task, level, fmt_ci(mt), fmt_ci(st), fmt(mt["mean"] / st["mean"], 2) if mt and st else "n/a"])
+            rows.append([task, level, fmt_ci(mt), fmt_ci(st), fmt_normalised(mt), fmt_normalised(st),
+                         fmt(mt["mean"] / st["mean"], 2) if mt and st else "n/a"])
     name = "multitask.png"
     band_curves(figure_dir / name, panels, {}, "episode return",
                 "naive multi-task PBRL (one actor) vs single-task PBRL")
     out += [f"![multitask]({link_prefix}{name})", "",
-            f"{curve_caption(drawn)}. The multi-task agent "
-            "counts gradient steps per task.", "",
+            f"{curve_caption(drawn)}. Both are drawn against gradient steps per task: a step of the multi-task "
+            "agent is one update of each task's critic (and of the shared actor for each task in turn).", "",
             table(["task", "level", "multi-task eval [95% CI]", "single-task teacher eval [95% CI]",
-                   "multi / single"], rows), ""]
+                   "multi-task normalised", "teacher normalised", "multi / single"], rows), "",
+            ci_caption([eval_entry(results, r[0], f"multitask_{r[1]}") for r in rows]
+                       + [eval_entry(results, r[0], f"teacher_{r[1]}_deterministic") for r in rows]) + ".", ""]
     return "\n".join(out)
+
+
+def teacher_run(results: StudyResults, task: str, group: str) -> dict | None:
+    """The eval entry of the teacher run students learned from (seed ``teacher_seed`` of the group)."""
+    entry = eval_entry(results, task, group)
+    seed = str(results.settings.get("teacher_seed", 0))
+    if entry and "runs" in entry and seed in entry["runs"]:
+        return entry["runs"][seed]
+    return entry
+
+
+def kl_rule_text(results: StudyResults) -> str:
+    action = (results.evaluation or {}).get("eval", {}).get("gaussian_student_action", "mean")
+    how = "by their mean" if action == "mean" else "by sampling from their Gaussian"
+    return (f"KL students act {how} (`eval.gaussian_student_action: {action}`), Gaussian teachers by their mean. "
+            "The thesis's reference code sampled KL students' actions while its teachers acted by the mean, so "
+            "its KL numbers compare with this study's only under `gaussian_student_action: sample`.")
+
+
+def student_rows(results: StudyResults, loss: str, pairing: str, runs: Sequence[Run]) -> list[list[str]]:
+    """Per task: the student group's eval, seed means, normalised score, its teacher run's eval and the ratio."""
+    levels = results.pairing_levels.get(pairing, [pairing] * len(results.tasks))
+    actor = "gaussian" if loss == "kl" else "deterministic"
+    rows = []
+    for task, level in zip(results.tasks, levels):
+        student = eval_entry(results, task, f"student_{loss}_{pairing}")
+        teacher = teacher_run(results, task, f"teacher_{level}_{actor}")
+        ratio = (results.evaluation or {}).get(task, {}).get(f"student_{loss}_{pairing}_to_teacher")
+        key = f"action_mse_{task}"
+        mse = [float(r.curve[-1][key]) for r in runs if r.curve and key in r.curve[-1]]
+        rows.append([loss, pairing, task, level, len(runs), fmt_ci(student), seed_means_text(student),
+                     fmt_normalised(student), fmt_ci(teacher), fmt_normalised(teacher), fmt(ratio, 2),
+                     fmt(sum(mse) / len(mse), 4) if mse else "n/a"])
+    return rows
+
+
+STUDENT_HEADER = ["loss", "pairing", "task", "teacher level", "seeds", "student eval [95% CI]", "seed means",
+                  "student normalised", "teacher eval [95% CI]", "teacher normalised", "student / teacher",
+                  "final action MSE"]
+
+
+def student_caption(results: StudyResults, rows: Sequence[Sequence[str]]) -> str:
+    students = [eval_entry(results, r[2], f"student_{r[0]}_{r[1]}") for r in rows]
+    teachers = [teacher_run(results, r[2], f"teacher_{r[3]}_{'gaussian' if r[0] == 'kl' else 'deterministic'}")
+                for r in rows]
+    return (f"Students: {ci_caption(students)}. Teachers (the run of seed {results.settings.get('teacher_seed', 0)} "
+            f"the students learned from): {ci_caption(teachers)}. Student / teacher divides by that run's mean.")
 
 
 def losses_section(results: StudyResults, figure_dir: Path, link_prefix: str) -> str:
@@ -240,26 +350,17 @@ def losses_section(results: StudyResults, figure_dir: Path, link_prefix: str) ->
             band = seed_band([r.curve for r in runs], f"return_mean_{task}")
             if band:
                 panels[task][f"{loss} {pairing} ({seeds_text(len(runs))})"] = band
-            teacher = eval_entry(results, task, f"teacher_{level}_{actor}")
+            teacher = teacher_run(results, task, f"teacher_{level}_{actor}")
             if teacher:
                 references[task][f"{level} {actor} teacher"] = teacher["mean"]
-            student = eval_entry(results, task, f"student_{loss}_{pairing}")
-            key = f"action_mse_{task}"
-            mse = [float(r.curve[-1][key]) for r in runs if r.curve and key in r.curve[-1]]
-            rows.append([loss, pairing, task, len(runs), fmt_ci(student), fmt_ci(teacher),
-                         fmt(student["mean"] / teacher["mean"], 2) if student and teacher else "n/a",
-                         fmt(sum(mse) / len(mse), 4) if mse else "n/a"])
+        rows += student_rows(results, loss, pairing, runs)
     name = "losses.png"
     band_curves(figure_dir / name, panels, references, "episode return",
                 "students by distillation loss (dashed: teacher eval mean)")
     out += [f"![losses]({link_prefix}{name})", "",
             f"{curve_caption(list(student_groups.values()))}; MSE and Q distil the deterministic "
             "teachers, KL the Gaussian ones. Dashed: each teacher's eval-stage mean.", "",
-            table(["loss", "pairing", "task", "seeds", "student eval [95% CI]", "teacher eval [95% CI]",
-                   "student / teacher", "final action MSE"], rows), "",
-            "Student intervals over "
-            f"{ci_caption([eval_entry(results, r[2], f'student_{r[0]}_{r[1]}') for r in rows])}.",
-            ""]
+            table(STUDENT_HEADER, rows), "", student_caption(results, rows), kl_rule_text(results), ""]
     return "\n".join(out)
 
 
@@ -269,26 +370,42 @@ def pairings_section(results: StudyResults) -> str:
         return "\n".join(out + [not_run("the distill stage", "Run `dvc repro distill`."), ""])
     pairings = sorted({r.key["pairing"] for r in results.students})
     loss = "mse" if any(r.key["loss"] == "mse" for r in results.students) else results.students[0].key["loss"]
-    actor = "gaussian" if loss == "kl" else "deterministic"
-    rows = []
-    for pairing in pairings:
-        levels = results.pairing_levels.get(pairing, [pairing] * len(results.tasks))
-        for task, level in zip(results.tasks, levels):
-            student = eval_entry(results, task, f"student_{loss}_{pairing}")
-            teacher = eval_entry(results, task, f"teacher_{level}_{actor}")
-            rows.append([pairing, task, level, fmt_ci(student), fmt_ci(teacher),
-                         fmt(student["mean"] / teacher["mean"], 2) if student and teacher else "n/a"])
+    groups = group_runs(results.students, "loss", "pairing")
+    rows = [row for pairing in pairings
+            for row in student_rows(results, loss, pairing, groups.get((loss, pairing), []))]
     if len(pairings) == 1:
         out += [f"*Only the pairing {pairings[0]} is part of this run; Appendix E's pairings (e.g. expert+medium) "
                 "are a `distill.pairings` change with the levels in `study.levels` (profiles/thesis.yaml runs "
                 "all nine).*", ""]
-    out += [table(["pairing", "task", "teacher level", f"{loss} student eval [95% CI]", "teacher eval [95% CI]",
-                   "student / teacher"], rows), ""]
+    out += [table(STUDENT_HEADER, rows), "", student_caption(results, rows), ""]
     return "\n".join(out)
 
 
+def aggregate_section(results: StudyResults) -> str:
+    out = ["## 6. Aggregate scores: IQM and probability of improvement (rliable)", ""]
+    aggregate = (results.evaluation or {}).get("aggregate")
+    if not aggregate:
+        return "\n".join(out + [not_run("the eval stage's aggregates", "Run `dvc repro eval`."), ""])
+    rows = [[group, a["tasks"], a["samples_per_task"],
+             f"{fmt(a['value'])} [{fmt(a['ci_low'])}, {fmt(a['ci_high'])}]"]
+            for group, a in aggregate["iqm_normalised"].items()]
+    out += [table(["policy group", "tasks", "samples per task (runs x episodes)", "IQM normalised score [95% CI]"],
+                  rows), ""]
+    rows = [[name.split("_vs_")[0], name.split("_vs_")[1], f"{a['samples_x']} x {a['samples_y']}",
+             f"{fmt(a['value'], 2)} [{fmt(a['ci_low'], 2)}, {fmt(a['ci_high'], 2)}]"]
+            for name, a in aggregate["probability_of_improvement"].items()]
+    out += [table(["X", "Y", "samples per task (X x Y)", "P(X > Y) [95% CI]"], rows), "", aggregate["note"],
+            "P = 0.5: neither is better; an interval that excludes 0.5 is a difference at the 95% level.", ""]
+    return "\n".join(out)
+
+
+def tau_pair(row: Mapping, key: str, digits: int = 3) -> str:
+    """``tau-a / tau-b`` of one table cell (``key`` is e.g. ``average_tau``)."""
+    return f"{fmt(row[f'{key}_a'], digits)} / {fmt(row[f'{key}_b'], digits)}"
+
+
 def shared_section(results: StudyResults) -> str:
-    out = ["## 6. Shared computation (thesis Table 6.1, Figures 6.3 and 6.4b)", ""]
+    out = ["## 7. Shared computation (thesis Table 6.1, Figures 6.3 and 6.4b)", ""]
     if results.shared is None:
         return "\n".join(out + [not_run("the shared_computation stage", "Run `dvc repro shared_computation`."), ""])
     shared = results.shared
@@ -300,25 +417,30 @@ def shared_section(results: StudyResults) -> str:
         for pair, layers in summary["pairs"].items():
             for layer, row in layers.items():
                 rows.append([group, pair, layer.removeprefix("layer"),
-                             f"{fmt(row['per_state_tau_mean'], 3)} +- {fmt(row['per_state_tau_sd'], 3)}",
-                             f"{fmt(row['average_tau'], 3)} (sd {fmt(row['average_tau_seed_sd'], 3)})",
+                             f"{fmt(row['per_state_tau_a_mean'], 3)} +- {fmt(row['per_state_tau_a_sd'], 3)}",
+                             f"{fmt(row['per_state_tau_b_mean'], 3)} +- {fmt(row['per_state_tau_b_sd'], 3)}",
+                             f"{tau_pair(row, 'average_tau')} (sd {fmt(row['average_tau_a_seed_sd'], 3)} / "
+                             f"{fmt(row['average_tau_b_seed_sd'], 3)})",
                              f"{fmt(row['linear_cka'], 3)} (sd {fmt(row['linear_cka_seed_sd'], 3)})",
                              summary["students"]])
                 ref = summary.get("untrained", {}).get("pairs", {}).get(pair, {}).get(layer)
                 if ref:
                     rows.append([f"{group}, untrained copy", pair, layer.removeprefix("layer"),
-                                 f"{fmt(ref['per_state_tau']['mean'], 3)} +- {fmt(ref['per_state_tau']['sd'], 3)}",
-                                 fmt(ref["average_tau"], 3), fmt(ref["linear_cka"], 3), "-"])
+                                 f"{fmt(ref['per_state_tau_a']['mean'], 3)} +- {fmt(ref['per_state_tau_a']['sd'], 3)}",
+                                 f"{fmt(ref['per_state_tau_b']['mean'], 3)} +- {fmt(ref['per_state_tau_b']['sd'], 3)}",
+                                 tau_pair(ref, "average_tau"), fmt(ref["linear_cka"], 3), "-"])
     out += [f"Each student acted online for {shared['episodes_per_task']} episodes per task; its post-ReLU "
-            "activations on the visited states are compared across task ids. Per state: Kendall's tau-b "
-            "between a state's activations under the two task ids, mean +- sd over states (s ~ D_i u D_j), "
-            "averaged over the group's students. Average: tau-b between the tasks' mean activations over their "
-            "own states. Linear CKA: the activation matrices under the two ids over the same states (6.2.4's "
-            "proposal). In brackets: sd over the group's students. 'untrained copy' rows: the same measures of "
-            "a freshly initialised network of the same shape on the same states (the group's first student's), "
-            "the level a number should be read against.", "",
-            table(["student group", "tasks", "layer", "per-state tau (mean +- sd)", "average tau", "linear CKA",
-                   "students"], rows), "", f"Ties: {shared['note']}", ""]
+            "activations on the visited states are compared across task ids. Per state: Kendall's tau between a "
+            "state's activations under the two task ids, mean +- sd over states (s ~ D_i u D_j), averaged over the "
+            "group's students. Average: tau between the tasks' mean activations over their own states. Both "
+            "variants: **tau-a** is the thesis's formula (6.2.2) and its reference code's, so it is the column to "
+            "compare with the thesis's Tables 6.1/6.2; **tau-b** corrects for the ties of ReLU zeros. Linear CKA: "
+            "the activation matrices under the two ids over the same states (6.2.4's proposal). In brackets: sd "
+            "over the group's students. 'untrained copy' rows: the same measures of a freshly initialised network "
+            "of the same shape on the same states (the group's first student's), the level a number should be "
+            "read against.", "",
+            table(["student group", "tasks", "layer", "per-state tau-a (mean +- sd)", "per-state tau-b (mean +- sd)",
+                   "average tau-a / tau-b", "linear CKA", "students"], rows), "", f"Ties: {shared['note']}", ""]
     zero = []
     for name, record in shared["students"].items():
         for task, fractions in record["zero_fraction"].items():
@@ -332,18 +454,27 @@ def shared_section(results: StudyResults) -> str:
     if tau_curve:
         init = {r.key["loss"] + " " + r.key["pairing"] + f" seed {r.seed}": r.metrics.get("per_state_tau")
                 for r in results.students if r.metrics.get("per_state_tau")}
+        sources = sorted({v["probe_source"] for v in init.values()})
+        where = {"offline": "a fixed probe set of offline dataset states (the same states for every student)",
+                 "visited": "states the student visited in that evaluation's episodes (the reference code's choice)"}
         out += [f"![per-state tau during distillation]({tau_curve})", "",
-                "Figure 6.4b analogue: per-state tau on a fixed probe set of distillation states, logged at every "
-                "evaluation; dotted lines: the same student at initialisation.", ""]
+                "Figure 6.4b analogue: per-state tau-a and tau-b on "
+                + "; ".join(where[s] for s in sources) + " (`distill.probe_source`), logged at every evaluation; "
+                "dotted lines: the same student at initialisation.", ""]
         if init:
-            out += [table(["student", "probe states per task", "tau at init (per layer)", "tau at end (per layer)"],
-                          [[name, v["probe_states_per_task"], " / ".join(fmt(x, 3) for x in v["at_init"].values()),
-                            " / ".join(fmt(x, 3) for x in v["final"].values())] for name, v in init.items()]), ""]
+            def layers(values: Mapping[str, float], variant: str) -> str:
+                return " / ".join(fmt(v, 3) for k, v in values.items() if k.startswith(f"per_state_tau_{variant}_"))
+            out += [table(["student", "probe states per task", "tau-a at init / end (per layer)",
+                           "tau-b at init / end (per layer)"],
+                          [[name, v["probe_states_per_task"],
+                            f"{layers(v['at_init'], 'a')} -> {layers(v['final'], 'a')}",
+                            f"{layers(v['at_init'], 'b')} -> {layers(v['final'], 'b')}"] for name, v in init.items()]),
+                    ""]
     return "\n".join(out)
 
 
 def cross_task_section(results: StudyResults) -> str:
-    out = ["## 7. Cross-task teachers (thesis Table 6.3)", ""]
+    out = ["## 8. Cross-task teachers (thesis Table 6.3)", ""]
     cross = (results.evaluation or {}).get("cross_task")
     if not cross:
         return "\n".join(out + [not_run("cross-task evaluation", "It needs deterministic teachers and the eval "
@@ -369,7 +500,8 @@ def render_report(results: StudyResults, figure_dir: Path, link_prefix: str) -> 
     figure_dir.mkdir(parents=True, exist_ok=True)
     sections = [header(results), behaviour_section(results), teachers_section(results, figure_dir, link_prefix),
                 multitask_section(results, figure_dir, link_prefix), losses_section(results, figure_dir, link_prefix),
-                pairings_section(results), shared_section(results), cross_task_section(results)]
+                pairings_section(results), aggregate_section(results), shared_section(results),
+                cross_task_section(results)]
     extra = results.figures.get("eval_returns")
     if extra:
         sections.append(f"## Appendix: every evaluated policy\n\n![returns]({extra})\n")

@@ -46,8 +46,8 @@ def settings(params: dict, results: StudyResults) -> dict:
     summary = (f"collect {params['collect']['schedule']['total_steps']} TD3 gradient steps per task "
                f"(medium at {params['collect']['schedule']['medium_step']}); PBRL teachers "
                f"{teachers['schedule']['steps']} steps, seeds {teachers['seeds']}; students "
-               f"{distill['schedule']['steps']} steps, seeds {distill['seeds']}; eval {evaluation['seeds']} seeds x "
-               f"{evaluation['episodes']} episodes")
+               f"{distill['schedule']['steps']} steps, seeds {distill['seeds']}; eval {evaluation['episodes']} "
+               "episodes per policy and task")
     timing = {}
     if results.collect:
         timing["collect"] = results.collect.get("stage_seconds")
@@ -60,6 +60,7 @@ def settings(params: dict, results: StudyResults) -> dict:
     if results.shared:
         timing["shared_computation"] = results.shared.get("seconds")
     return {"summary": summary, "timing": {k: v for k, v in timing.items() if v is not None},
+            "teacher_seed": distill["teacher_seed"],
             "snapshot_eval_episodes": params["collect"]["schedule"].get("snapshot_eval_episodes")}
 
 

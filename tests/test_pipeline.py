@@ -69,9 +69,20 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
     for task in ("stand", "walk"):
         for group in ("behaviour_expert", "teacher_medium_deterministic", "multitask_medium", "student_mse_medium",
                       "student_kl_medium"):
-            stats = evaluation[task][group]
-            assert stats["ci_low"] <= stats["mean"] <= stats["ci_high"] and stats["n"] == 2
+            stats = evaluation[task][group]  # one seed each: an interval over the 3 episodes
+            assert stats["ci_low"] <= stats["mean"] <= stats["ci_high"] and stats["n"] == 3
+            assert stats["ci_unit"] == "episode" and stats["normalised"]["ci_low"] <= stats["normalised"]["mean"]
         assert "student_q_medium_to_teacher" in evaluation[task]
+        collect = json.loads((repo / "results" / "collect" / "metrics.json").read_text())
+        assert evaluation["normalisation"][task]["random_return"] == collect[task]["random_return"]
+    aggregate = evaluation["aggregate"]
+    assert set(aggregate["iqm_normalised"]) >= {"student_mse_medium", "teacher_medium_deterministic"}
+    assert set(aggregate["probability_of_improvement"]) == {
+        "multitask_medium_vs_teachers", "student_mse_medium_vs_teachers", "student_q_medium_vs_teachers",
+        "student_kl_medium_vs_teachers", "student_mse_medium_vs_student_q_medium",
+        "student_mse_medium_vs_student_kl_medium", "student_q_medium_vs_student_kl_medium"}
+    assert all(0 <= a["ci_low"] <= a["value"] <= a["ci_high"] <= 1
+               for a in aggregate["probability_of_improvement"].values())
     assert set(evaluation["cross_task"]["medium"]["stand"]) == {"stand", "walk"}
     for figure in ("returns.png", "student_curves.png"):
         assert (repo / "results" / "eval" / figure).read_bytes()[:4] == b"\x89PNG"
@@ -85,10 +96,11 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
     assert shared["groups"] == shown[""]["data"]["results/shared_computation/metrics.json"]["data"]["groups"]
     for group in ("mse_medium", "q_medium", "kl_medium"):
         layers = shared["groups"][group]["pairs"]["stand-walk"]
-        assert list(layers) == ["layer1", "layer2"] and all(-1 <= row["average_tau"] <= 1 for row in layers.values())
-    assert "tau-b" in shared["note"]
+        assert list(layers) == ["layer1", "layer2"]
+        assert all(-1 <= row[f"average_tau_{v}"] <= 1 for row in layers.values() for v in "ab")
+    assert "tau-b" in shared["note"] and "tau-a" in shared["note"]
     curve = (repo / "results" / "students" / "curves" / "mse-medium-0.tsv").read_text().splitlines()
-    assert "per_state_tau_layer1" in curve[0].split("\t")
+    assert {"per_state_tau_a_layer1", "per_state_tau_b_layer2"} <= set(curve[0].split("\t"))
     _check_report(repo)
     status = _run(["dvc", "status"], repo).stdout
     assert "up to date" in status.lower()
@@ -106,8 +118,8 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
 def _check_report(repo: Path) -> None:
     """The report has every thesis section, and every figure it links is a PNG file."""
     report = (repo / "results" / "report.md").read_text()
-    for title in ("Table 4.1", "Figure 5.1", "Figure 5.3", "Figure 5.4", "Appendix E", "Table 6.1", "Figure 6.3",
-                  "Table 6.3"):
+    for title in ("Table 4.1", "Figure 5.1", "Figure 5.3", "Figure 5.4", "Appendix E", "IQM", "Table 6.1",
+                  "Figure 6.3", "Table 6.3"):
         assert title in report
     assert report.index("Table 4.1") < report.index("Figure 5.1") < report.index("Table 6.1") < report.index(
         "Table 6.3")

@@ -5,11 +5,13 @@ in test_pipeline.py renders it from a real run.)"""
 from __future__ import annotations
 
 import re
+import tempfile
+from pathlib import Path
 
 import pytest
 
-from mop_core.evaluation import confidence_interval
 from mop_core.report import Run, StudyResults, render_report, seed_band
+from mop_core.statistics import confidence_interval
 
 TASKS = ["stand", "walk"]
 
@@ -18,8 +20,15 @@ def _curve(values: list[float], key: str = "return_mean") -> list[dict[str, str]
     return [{"step": str(1000 * (k + 1)), key: str(v)} for k, v in enumerate(values)]
 
 
-def _entry(mean: float, n: int = 3, unit: str = "eval_seed") -> dict:
-    return {"mean": mean, "ci_low": mean - 10, "ci_high": mean + 10, "n": n, "ci_unit": unit, "std": 5.0}
+def _entry(mean: float, n: int = 30, unit: str = "episode", seeds: tuple[int, ...] = (0,)) -> dict:
+    entry = {"mean": mean, "ci_low": mean - 10, "ci_high": mean + 10, "n": n, "ci_unit": unit, "std": 5.0,
+             "seed_means": {str(s): mean + s for s in seeds},
+             "normalised": {"mean": mean / 10, "ci_low": mean / 10 - 1, "ci_high": mean / 10 + 1}}
+    if len(seeds) > 1:
+        entry["runs"] = {str(s): {"mean": mean + s, "ci_low": mean + s - 20, "ci_high": mean + s + 20, "n": n,
+                                  "ci_unit": "episode", "normalised": {"mean": (mean + s) / 10, "ci_low": 0.0,
+                                                                       "ci_high": 100.0}} for s in seeds}
+    return entry
 
 
 def _full_results() -> StudyResults:
@@ -28,47 +37,79 @@ def _full_results() -> StudyResults:
     multitask = [Run({"level": "medium"}, 0, {}, [r | {"return_mean_walk": "150"} for r in
                                                   _curve([120.0, 250.0], "return_mean_stand")])]
     students = [Run({"loss": "mse", "pairing": "medium"}, seed, {"per_state_tau": {
-        "probe_states_per_task": 8, "at_init": {"layer1": 0.9}, "final": {"layer1": 0.5}}},
+        "probe_source": "offline", "probe_states_per_task": 8,
+        "at_init": {"per_state_tau_a_layer1": 0.6, "per_state_tau_b_layer1": 0.9},
+        "final": {"per_state_tau_a_layer1": 0.3, "per_state_tau_b_layer1": 0.5}}},
         [r | {"return_mean_walk": "200", "action_mse_stand": "0.1", "action_mse_walk": "0.2"}
          for r in _curve([300.0 + seed, 390.0 + seed], "return_mean_stand")]) for seed in (0, 1)]
     evaluation = {task: {"behaviour_medium": _entry(250.0), "behaviour_expert": _entry(600.0),
                          "teacher_medium_deterministic": _entry(404.55), "multitask_medium": _entry(222.2),
-                         "student_mse_medium": _entry(426.1, 2, "training_seed")} for task in TASKS}
+                         "student_mse_medium": _entry(426.1, 60, seeds=(0, 1)),
+                         "student_mse_medium_to_teacher": 426.1 / 404.55} for task in TASKS}
+    evaluation["eval"] = {"gaussian_student_action": "mean", "episodes_per_job": 30}
+    evaluation["normalisation"] = {t: {"random_return": 130.0, "random_episodes": 100, "expert_return": 986.8,
+                                       "expert_source": "UTDS task.json"} for t in TASKS}
+    interval = {"value": 41.5, "ci_low": 38.2, "ci_high": 44.9, "reps": 2000, "tasks": "stand, walk",
+                "samples_per_task": 60, "ci_unit": "runs x episodes, stratified by task"}
+    evaluation["aggregate"] = {
+        "iqm_normalised": {"student_mse_medium": interval},
+        "probability_of_improvement": {"student_mse_medium_vs_teachers": interval | {
+            "value": 0.61, "ci_low": 0.52, "ci_high": 0.7, "samples_x": 60, "samples_y": 30}},
+        "note": "IQM note"}
     evaluation["cross_task"] = {"medium": {"stand": {"stand": 404.6, "walk": 88.6},
                                            "walk": {"stand": 286.6, "walk": 205.1}}}
-    layer = {"per_state_tau_mean": 0.617, "per_state_tau_sd": 0.139, "average_tau": -0.016,
-             "average_tau_seed_sd": 0.007, "linear_cka": 0.996, "linear_cka_seed_sd": 0.0}
+    layer = {"per_state_tau_a_mean": 0.452, "per_state_tau_a_sd": 0.101, "per_state_tau_b_mean": 0.617,
+             "per_state_tau_b_sd": 0.139, "average_tau_a": -0.011, "average_tau_a_seed_sd": 0.005,
+             "average_tau_b": -0.016, "average_tau_b_seed_sd": 0.007, "linear_cka": 0.996, "linear_cka_seed_sd": 0.0}
     shared = {"note": "tau-b corrects for ties", "episodes_per_task": 10,
               "groups": {"mse_medium": {"students": 2, "pairs": {"stand-walk": {"layer1": layer}},
                                         "untrained": {"pairs": {"stand-walk": {"layer1": {
-                                            "per_state_tau": {"mean": 0.811, "sd": 0.05}, "average_tau": 0.2,
-                                            "linear_cka": 0.999}}}}}},
+                                            "per_state_tau_a": {"mean": 0.701, "sd": 0.04},
+                                            "per_state_tau_b": {"mean": 0.811, "sd": 0.05}, "average_tau_a": 0.15,
+                                            "average_tau_b": 0.2, "linear_cka": 0.999}}}}}},
               "students": {"mse-medium-0": {"zero_fraction": {"stand": {"layer1": 0.53}, "walk": {"layer1": 0.5}}}}}
     return StudyResults(
-        tasks=TASKS, levels=["medium"], settings={"summary": "tiny", "snapshot_eval_episodes": 10},
+        tasks=TASKS, levels=["medium"], settings={"summary": "tiny", "snapshot_eval_episodes": 10, "teacher_seed": 0},
         collect={t: {"medium_gradient_steps": 35000, "medium_return": 336.4, "expert_gradient_steps": 90000,
                      "expert_return": 560.9} for t in TASKS},
         datasets={f"{t}-medium": {"transitions": 1000, "complete_episodes": 1, "return_mean": 313.8,
                                   "return_std": 59.5, "return_min": 146.1, "return_max": 476.7} for t in TASKS},
         teachers=teachers, multitask=multitask, students=students, pairing_levels={"medium": ["medium", "medium"]},
-        evaluation=evaluation, shared=shared)
+        evaluation=evaluation, shared=shared,
+        figures={"tau_during_training": "shared_computation/tau_during_training.png"})
 
 
 def test_report_shows_the_runs_numbers_in_thesis_order_and_draws_the_figures_it_links(tmp_path):
     markdown = render_report(_full_results(), tmp_path / "report", "report/")
-    assert "404.6 [394.6, 414.6]" in markdown  # teacher eval with its CI, from the eval metrics
-    assert "0.617 +- 0.139" in markdown and "0.996" in markdown  # Table 6.1 row
-    assert "| mse_medium, untrained copy | stand-walk | 1 | 0.811 +- 0.050 | 0.200 | 0.999 | - |" in markdown
+    assert "404.6 [394.6, 414.6] (n=30 episodes)" in markdown  # teacher eval with its CI and unit
+    assert "426.1 [416.1, 436.1] (n=60 episodes of 2 seeds)" in markdown and "426.1 / 427.1" in markdown
+    assert "40.5 [39.5, 41.5]" in markdown  # the teacher's normalised score
+    assert "0.452 +- 0.101" in markdown and "0.617 +- 0.139" in markdown and "0.996" in markdown  # Table 6.1
+    assert "-0.011 / -0.016" in markdown  # average tau-a / tau-b
+    assert "| mse_medium, untrained copy | stand-walk | 1 | 0.701 +- 0.040 | 0.811 +- 0.050 | 0.150 / 0.200 | " \
+           "0.999 | - |" in markdown
     assert "| medium | walk teacher | 286.6 | 205.1 |" in markdown  # Table 6.3 row
     assert "the walk teacher (205.1)" in markdown
     assert "1.05" in markdown  # student / teacher = 426.1 / 404.55
+    assert "41.5 [38.2, 44.9]" in markdown and "0.61 [0.52, 0.70]" in markdown  # IQM and P(X > Y)
+    assert "R_random 130.0 (100 uniformly random episodes" in markdown
+    assert "pooled over 2 training seeds" in markdown and "evaluation episodes of one trained policy" in markdown
+    assert "KL students act by their mean" in markdown and "tau-a" in markdown
+    assert "fixed probe set of offline dataset states" in markdown and "0.600 -> 0.300" in markdown
     order = [markdown.index(t) for t in ("Table 4.1", "Figure 5.1", "Figure 5.3", "Figure 5.4", "Appendix E",
-                                         "Table 6.1", "Table 6.3")]
+                                         "IQM", "Table 6.1", "Table 6.3")]
     assert order == sorted(order)
     assert "Not part of this run" not in markdown
     for link in re.findall(r"!\[[^\]]*\]\((report/[^)]+)\)", markdown):
         assert (tmp_path / link).read_bytes()[:4] == b"\x89PNG"
     assert {p.name for p in (tmp_path / "report").iterdir()} == {"teachers.png", "multitask.png", "losses.png"}
+
+
+def test_every_interval_cell_says_its_unit():
+    markdown = render_report(_full_results(), Path(tempfile.mkdtemp()) / "report", "report/")
+    cells = re.findall(r"\d+\.\d \[-?\d+\.\d, -?\d+\.\d\][^|]*", markdown)
+    raw = [c for c in cells if not c.strip().endswith("]")]  # normalised columns sit beside a raw cell
+    assert raw and all("(n=" in c for c in raw)
 
 
 def test_sections_of_stages_not_run_say_so(tmp_path):
@@ -87,7 +128,10 @@ def test_learning_curve_band_is_the_t_interval_over_seeds_at_common_steps():
     curves = [_curve([1.0, 2.0, 9.0]), _curve([3.0, 4.0])]
     band = seed_band(curves, "return_mean")
     assert band["step"] == [1000.0, 2000.0] and band["mean"] == [2.0, 3.0]
-    assert band["ci_low"][0] == pytest.approx(confidence_interval([1.0, 3.0])["ci_low"])
+    assert band["ci_low"] is None  # two seeds: the mean only (t(0.975, 1) = 12.7 is no interval)
+    three = seed_band(curves + [_curve([5.0, 6.0])], "return_mean")
+    assert three["mean"] == [3.0, 4.0]
+    assert three["ci_low"][0] == pytest.approx(confidence_interval([1.0, 3.0, 5.0])["ci_low"])
     single = seed_band(curves[:1], "return_mean")
     assert single["ci_low"] is None and single["mean"] == [1.0, 2.0, 9.0]
     assert seed_band(curves, "missing") is None
