@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from mop_core.config import ConfigError
+from mop_core.data import read_dataset
 from mop_core.distill.distiller import DistillConfig, Distiller
 from mop_core.distill.losses import gaussian_kl_per_state, mse_per_state, q_per_state, reduce_ensemble
 from mop_core.distill.run import StudentSources, distill_student, load_student, student_policy
@@ -253,7 +254,9 @@ def test_distill_run_writes_student_metrics_and_curve(tiny_teachers, tmp_path, l
             assert metrics["per_state_tau"]["final"][key] == values[-1]
             assert -1 <= metrics["per_state_tau"]["at_init"][key] <= 1
         assert all(abs(a) <= abs(b) + 1e-12 for a, b in zip(taus["a"], taus["b"]))
-    assert metrics["per_state_tau"]["probe_states_per_task"] == config.probe_states
+    # the count actually drawn: every state of a dataset smaller than probe_states (the tiny ones here)
+    smallest = min(len(read_dataset(d).arrays["observations"]) for d in _sources(tiny_teachers, actor).datasets)
+    assert metrics["per_state_tau"]["probe_states_per_task"] == min(config.probe_states, smallest)
     assert metrics["per_state_tau"]["probe_source"] == "offline" and len(metrics["per_state_tau"]["probe_sha256"]) == 64
     loaded = load_student(tmp_path / "student.pt")
     assert loaded.tasks == ["stand", "walk"] and loaded.config == config

@@ -183,7 +183,8 @@ def distill_student(sources: StudentSources, config: DistillConfig, schedule: Tr
     if track_tau:
         metrics["per_state_tau"] = {
             "probe_source": config.probe_source,
-            "probe_states_per_task": len(fixed_probes[0]) if fixed_probes else config.probe_states,
+            "probe_states_per_task": (min(len(p) for p in fixed_probes) if fixed_probes
+                                      else config.probe_states),
             "probe_sha256": (hashlib.sha256(torch.cat(fixed_probes).numpy().tobytes()).hexdigest()
                              if fixed_probes else None),
             "at_init": tau_at_init,
