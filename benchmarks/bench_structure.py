@@ -2,7 +2,7 @@
 
 Prints
 - Kendall tau-b rows/s on 256-neuron ReLU activations: ``mop_core.structure.kendall_tau_b``
-  (float32 pair-sign matrices, small chunks) vs the upper-triangle float64 version it replaced vs a
+  (one-byte order masks, small chunks) vs the upper-triangle float64 version it replaced vs a
   ``scipy.stats.kendalltau`` loop, and the ratios;
 - the cost of the per-state tau curve during distillation (thesis Figure 6.4b): seconds per
   measurement on ``probe_states`` states per task against the seconds of the ``eval_every``

@@ -26,15 +26,16 @@ TAU_VARIANTS = ("a", "b")
 
 
 @torch.no_grad()
-def kendall_tau(x: torch.Tensor, y: torch.Tensor, chunk: int = 32) -> dict[str, torch.Tensor]:
+def kendall_tau(x: torch.Tensor, y: torch.Tensor, chunk: int = 8) -> dict[str, torch.Tensor]:
     """Kendall's tau-a and tau-b between rows: ``x, y [S, n] -> {"a": [S], "b": [S]}`` (a single
     pair ``[n]`` -> scalars).
 
-    Builds the ``[chunk, n, n]`` pair-sign matrices in float32 (signs and their sums up to n^2 are
-    exact there; the sign of a float32 difference is exact). O(n^2) per row but batched: on CPU about
-    as fast as ``scipy.stats.kendalltau`` (O(n log n), C) called row by row and ~5x faster than
-    gathering the upper triangle in float64 (benchmarks/bench_structure.py); on a GPU it takes the
-    thesis profile's millions of rows in seconds. Small chunks stay in cache.
+    With the boolean order matrices ``g_x[i, j] = x_i > x_j`` (and ``g_y``), over ordered pairs
+    ``C = sum(g_x & g_y)``, ``D = sum(g_x & g_y^T)`` and the untied pairs of x are ``sum(g_x)``, so
+    ``n0 - n1 = sum(g_x)``: four integer counts, exact. The ``[chunk, n, n]`` masks are one byte per
+    pair, so small chunks stay in cache. O(n^2) per row but batched: on CPU faster than
+    ``scipy.stats.kendalltau`` (O(n log n), C) called row by row (benchmarks/bench_structure.py);
+    on a GPU it takes the thesis profile's millions of rows in seconds.
     """
     single = x.dim() == 1
     x, y = torch.atleast_2d(x), torch.atleast_2d(y)
@@ -46,23 +47,22 @@ def kendall_tau(x: torch.Tensor, y: torch.Tensor, chunk: int = 32) -> dict[str, 
     n0 = n * (n - 1) / 2
     tau_a, tau_b = [], []
     for xs, ys in zip(x.split(chunk), y.split(chunk)):
-        sx = torch.sign(xs[:, :, None] - xs[:, None, :])  # [s, n, n]; each pair twice, diagonal 0
-        sy = torch.sign(ys[:, :, None] - ys[:, None, :])
-        score = (sx * sy).sum((1, 2)).double() / 2  # C - D
-        ties_x = ((sx == 0).sum((1, 2)).double() - n) / 2  # tied pairs (without i == j)
-        ties_y = ((sy == 0).sum((1, 2)).double() - n) / 2
+        gx = xs[:, :, None] > xs[:, None, :]  # [s, n, n]: ordered pairs, each untied pair once
+        gy = ys[:, :, None] > ys[:, None, :]
+        score = (gx & gy).sum((1, 2)).double() - (gx & gy.transpose(1, 2)).sum((1, 2)).double()  # C - D
+        untied_x, untied_y = gx.sum((1, 2)).double(), gy.sum((1, 2)).double()  # n0 - n1, n0 - n2
         tau_a.append(score / n0)
-        tau_b.append(score / torch.sqrt((n0 - ties_x) * (n0 - ties_y)))  # 0/0 -> NaN for a constant vector
+        tau_b.append(score / torch.sqrt(untied_x * untied_y))  # 0/0 -> NaN for a constant vector
     out = {"a": torch.cat(tau_a), "b": torch.cat(tau_b)}
     return {k: v[0] for k, v in out.items()} if single else out
 
 
-def kendall_tau_b(x: torch.Tensor, y: torch.Tensor, chunk: int = 32) -> torch.Tensor:
+def kendall_tau_b(x: torch.Tensor, y: torch.Tensor, chunk: int = 8) -> torch.Tensor:
     """Kendall's tau-b between rows (:func:`kendall_tau`)."""
     return kendall_tau(x, y, chunk)["b"]
 
 
-def kendall_tau_a(x: torch.Tensor, y: torch.Tensor, chunk: int = 32) -> torch.Tensor:
+def kendall_tau_a(x: torch.Tensor, y: torch.Tensor, chunk: int = 8) -> torch.Tensor:
     """Kendall's tau-a between rows (:func:`kendall_tau`): ``(C - D) / (n (n - 1) / 2)``."""
     return kendall_tau(x, y, chunk)["a"]
 
