@@ -26,7 +26,7 @@ import copy
 import itertools
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 import torch
@@ -79,6 +79,20 @@ def visited_states(student_path: Path, task: str, seeds: Sequence[int], episode_
     arrays = collect_episodes(policy, task, seeds, episode_length, rollout_envs)
     returns = arrays["rewards"].reshape(len(seeds), episode_length).sum(1)
     return arrays["observations"].astype(np.float32), returns
+
+
+def rollout_jobs(students: Mapping[str, tuple[Path, Sequence[str]]], study_tasks: Sequence[str]
+                 ) -> list[tuple[Path, str]]:
+    """The (checkpoint, task) rollouts of every student, in the order of the tasks *its checkpoint*
+    was trained with: ``measure_student`` pairs ``states[i]`` with task id i, so the study's own
+    order (``study.tasks``) must not be used. ``students`` maps a name to (checkpoint, its tasks).
+    A student trained on another set of tasks than the study's is refused (ConfigError) before any
+    rollout."""
+    for name, (path, tasks) in students.items():
+        require(sorted(tasks) == sorted(study_tasks), "study.tasks",
+                f"the tasks student {name} ({path}) was distilled on, {list(tasks)} (rerun distill)",
+                list(study_tasks))
+    return [(path, task) for path, tasks in students.values() for task in tasks]
 
 
 def collect_visited(jobs: Sequence[tuple[Path, str]], study_seed: int, episode_length: int,

@@ -34,6 +34,7 @@ from mop_core.shared_computation import (
     SharedComputationConfig,
     collect_visited,
     measure_student,
+    rollout_jobs,
     summarise_students,
     untrained_like,
 )
@@ -59,18 +60,20 @@ def main() -> None:
 
     first_student = {members[0]: group for group, members in groups.items()}
     started = time.perf_counter()
-    jobs = [(paths[name].checkpoint, task) for name in names for task in study.tasks]
+    students = {name: load_student(paths[name].checkpoint) for name in names}
+    # each student's rollouts in its checkpoint's task order (its task ids), not study.tasks' order
+    jobs = rollout_jobs({name: (paths[name].checkpoint, students[name].tasks) for name in names}, study.tasks)
     visited = collect_visited(jobs, study.seed, study.episode_length, config, progress_enabled(study.progress))
     rollout_seconds = time.perf_counter() - started
     set_threads(threads)
 
     records, untrained = {}, {}
     for n, name in enumerate(names):
-        loaded = load_student(paths[name].checkpoint)
-        mine = visited[n * len(study.tasks):(n + 1) * len(study.tasks)]
+        loaded = students[name]
+        mine = visited[n * len(loaded.tasks):(n + 1) * len(loaded.tasks)]
         states = [torch.as_tensor(obs) for obs, _ in mine]
         record = measure_student(loaded.student, loaded.tasks, states)
-        record["student_return"] = {task: float(returns.mean()) for task, (_, returns) in zip(study.tasks, mine)}
+        record["student_return"] = {task: float(returns.mean()) for task, (_, returns) in zip(loaded.tasks, mine)}
         records[name] = record
         group = first_student.get(name)
         if group is not None:  # the reference: an untrained copy on the same states, once per group

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from mop_core.artifacts import save_checkpoint
-from mop_core.config import to_dict
+from mop_core.config import ConfigError, to_dict
 from mop_core.distill.distiller import DistillConfig
 from mop_core.distill.run import STUDENT_KIND, load_student
 from mop_core.distill.student import Student, StudentConfig
@@ -19,6 +19,7 @@ from mop_core.shared_computation import (
     collect_visited,
     episode_seeds,
     measure_student,
+    rollout_jobs,
     summarise_students,
     untrained_like,
     visited_states,
@@ -124,6 +125,22 @@ def test_visited_states_are_the_students_own_rollouts_in_any_number_of_processes
         np.testing.assert_array_equal(obs_a, obs_b)
         np.testing.assert_array_equal(ret_a, ret_b)
     np.testing.assert_array_equal(one[1][0], obs)
+
+
+def test_rollouts_follow_the_checkpoints_task_order_not_the_studys(tmp_path):
+    """Issue 12: measure_student pairs states[i] with task id i, so a study whose ``study.tasks`` lists
+    the tasks in another order than the student was trained with must still roll out, per student,
+    in the checkpoint's order (it swapped the tasks' activations before); another set is refused."""
+    first = tmp_path / "first.pt"
+    second = tmp_path / "second.pt"
+    students = {"mse-medium-0": (first, ["stand", "walk"]), "mse-medium-1": (second, ["walk", "stand"])}
+    expected = [(first, "stand"), (first, "walk"), (second, "walk"), (second, "stand")]
+    assert rollout_jobs(students, ["stand", "walk"]) == expected
+    assert rollout_jobs(students, ["walk", "stand"]) == expected
+    with pytest.raises(ConfigError, match=r"study.tasks: expected the tasks student mse-medium-0 .*first.pt"):
+        rollout_jobs(students, ["stand", "run"])
+    with pytest.raises(ConfigError, match="rerun distill"):
+        rollout_jobs(students, ["stand", "walk", "run"])
 
 
 def test_config_errors_name_the_parameter():
