@@ -11,6 +11,7 @@ from typing import Any
 
 import torch
 
+from mop_core.config import InputFileError, first_line
 from mop_core.data import atomic_path
 
 
@@ -46,15 +47,27 @@ def save_checkpoint(path: str | os.PathLike, payload: dict[str, Any]) -> Path:
     return Path(path)
 
 
-def load_checkpoint(path: str | os.PathLike, kind: str) -> dict[str, Any]:
-    """Load a checkpoint written by :func:`save_checkpoint` and check its ``kind`` field."""
+def read_torch_file(path: str | os.PathLike) -> Any:
+    """``torch.load`` of a file the stages wrote; a missing, empty, truncated or foreign file raises
+    InputFileError naming it (torch's own errors, e.g. ``EOFError: Ran out of input``, do not)."""
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: checkpoint not found")
-    payload = torch.load(path, map_location="cpu", weights_only=False)
+        raise InputFileError(f"{path}: checkpoint not found")
+    if path.stat().st_size == 0:
+        raise InputFileError(f"{path}: empty file (an interrupted copy?); rerun the stage that writes it")
+    try:
+        return torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as err:  # torch raises EOFError, UnpicklingError, RuntimeError... for a damaged file
+        raise InputFileError(f"{path}: not a readable torch checkpoint (truncated or corrupt?): "
+                             f"{first_line(err)}") from None
+
+
+def load_checkpoint(path: str | os.PathLike, kind: str) -> dict[str, Any]:
+    """Load a checkpoint written by :func:`save_checkpoint` and check its ``kind`` field."""
+    payload = read_torch_file(path)
     if not isinstance(payload, dict) or payload.get("kind") != kind:
         found = payload.get("kind") if isinstance(payload, dict) else type(payload).__name__
-        raise ValueError(f"{path}: expected a {kind!r} checkpoint, found {found!r}")
+        raise InputFileError(f"{path}: expected a {kind!r} checkpoint, found {found!r}")
     return payload
 
 

@@ -85,6 +85,10 @@ class CollectConfig:
 
     def __post_init__(self) -> None:
         require(self.episode_length > 0, "episode_length", "a positive integer", self.episode_length)
+        capacity = self.schedule.warmup_steps + self.schedule.total_steps
+        require(self.td3.batch_size <= capacity, "td3.batch_size",
+                f"at most the {capacity} transitions the replay buffer ever holds (warmup_steps + total_steps)",
+                self.td3.batch_size)
 
 
 @dataclass(frozen=True)

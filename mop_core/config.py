@@ -9,6 +9,7 @@ full dotted key (``collect.schedule.medium_step: ...``), before any compute star
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from typing import Any, Mapping, TypeVar
@@ -20,10 +21,31 @@ class ConfigError(ValueError):
     """A parameter has a wrong value; the message starts with the parameter's dotted key."""
 
 
+class InputFileError(ValueError):
+    """An input file is missing, unreadable, or not what the run expects; the message starts with its path.
+
+    Stage scripts report it like a ConfigError: one line, exit status 2."""
+
+
+def first_line(err: BaseException) -> str:
+    """An exception as one line: its type and the first line of its message."""
+    lines = str(err).strip().splitlines()
+    return f"{type(err).__name__}: {lines[0]}" if lines else type(err).__name__
+
+
 def require(condition: bool, key: str, expected: str, value: Any) -> None:
     """Raise ``ConfigError('<key>: expected <expected>, got <value>')`` unless ``condition``."""
     if not condition:
         raise ConfigError(f"{key}: expected {expected}, got {value!r}")
+
+
+def require_unique(values, key: str) -> None:
+    """Grid lists (seeds, levels, actors, losses) name distinct runs: a repeat would count one run twice."""
+    seen = set()
+    for value in values:
+        if value in seen:
+            raise ConfigError(f"{key}: expected a list without repeats, got {list(values)!r} ({value!r} twice)")
+        seen.add(value)
 
 
 def _coerce(value: Any, annotation: Any, key: str) -> Any:
@@ -38,6 +60,10 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:
         if not isinstance(value, Mapping):
             raise ConfigError(f"{key}: expected a mapping of {annotation.__name__} fields, got {value!r}")
         return from_mapping(annotation, value, key)
+    if origin is dict:
+        if not isinstance(value, Mapping):
+            raise ConfigError(f"{key}: expected a mapping, got {value!r}")
+        return dict(value)
     if origin is tuple:
         if not isinstance(value, (list, tuple)):
             raise ConfigError(f"{key}: expected a list, got {value!r}")
@@ -54,11 +80,13 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:
     if annotation is float:
         if isinstance(value, str):  # YAML reads 3e-4 (no dot) as a string
             try:
-                return float(value)
+                value = float(value)
             except ValueError:
                 pass
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{key}: expected a number, got {value!r}")
+        if not math.isfinite(value):  # no parameter of the study gives inf or nan a meaning
+            raise ConfigError(f"{key}: expected a finite number, got {value!r}")
         return float(value)
     if annotation is str:
         if not isinstance(value, str):

@@ -26,10 +26,9 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import numpy as np
-import torch
 from tqdm import tqdm
 
-from mop_core.config import require
+from mop_core.config import InputFileError, require
 from mop_core.rollout import episode_returns
 from mop_core.runtime import derive_seeds, set_threads
 from mop_core.statistics import (
@@ -91,11 +90,12 @@ class Job:
 def load_policy(spec: PolicySpec) -> Policy:
     """A numpy policy from any checkpoint of the study (Gaussian actors act with their mean)."""
     if spec.kind == "behaviour":
+        from mop_core.artifacts import read_torch_file
         from mop_core.collect import load_actor
 
-        payload = torch.load(spec.path, map_location="cpu", weights_only=False)
+        payload = read_torch_file(spec.path)
         if not isinstance(payload, dict) or "td3_config" not in payload:
-            raise ValueError(f"{spec.path}: expected a behaviour snapshot of the collect stage")
+            raise InputFileError(f"{spec.path}: expected a behaviour snapshot of the collect stage")
         return load_actor(payload)
     if spec.kind == "teacher":
         from mop_core.teachers import load_teacher

@@ -22,7 +22,7 @@ import torch
 
 from mop_core.config import require
 from mop_core.data import TransitionTensors, atomic_path, read_dataset, read_relabel, write_relabel
-from mop_core.data.hdf5 import DATASET_SCHEMA, Dataset
+from mop_core.data.hdf5 import DATASET_SCHEMA, Dataset, DatasetError
 from mop_core.envs import physics_replay_rewards
 from mop_core.tasks import check_task_list, reward
 
@@ -54,14 +54,16 @@ def relabel_rewards(dataset: Dataset, tasks: Sequence[str], method: str = "vecto
 
 
 def relabel_dataset(dataset_path: str | os.PathLike, out_path: str | os.PathLike, tasks: Sequence[str],
-                    config: RelabelConfig) -> dict:
+                    config: RelabelConfig, source_task: str | None = None, level: str | None = None) -> dict:
     """Write the relabel file of one dataset and return its check metrics.
 
-    Checks, failing loudly beyond ``config.tolerance``: the recomputed reward of the dataset's own
-    task against the stored (dm_control) rewards, and the other method on a sample of rows.
+    The dataset's stored content_sha256 is verified first (a file edited after collect is refused,
+    as is one whose attributes name another ``source_task`` or ``level`` than expected). Checks,
+    failing loudly beyond ``config.tolerance``: the recomputed reward of the dataset's own task
+    against the stored (dm_control) rewards, and the other method on a sample of rows.
     """
     tasks = check_task_list(tasks, "tasks")
-    dataset = read_dataset(dataset_path)
+    dataset = read_dataset(dataset_path, verify_checksum=True, task=source_task, level=level)
     started = time.perf_counter()
     rewards = relabel_rewards(dataset, tasks, config.method)
     seconds = time.perf_counter() - started
@@ -74,7 +76,7 @@ def relabel_dataset(dataset_path: str | os.PathLike, out_path: str | os.PathLike
         diff = float(np.abs(rewards[own_task] - stored).max())
         metrics["max_abs_diff_vs_stored"] = diff
         if diff > config.tolerance:
-            raise RuntimeError(f"{dataset_path}: relabelled {own_task} rewards differ from the stored dm_control "
+            raise DatasetError(f"{dataset_path}: relabelled {own_task} rewards differ from the stored dm_control "
                                f"rewards by {diff:.3g} > tolerance {config.tolerance}")
     n_check = min(config.physics_check_transitions, len(dataset))
     if n_check:
@@ -85,7 +87,7 @@ def relabel_dataset(dataset_path: str | os.PathLike, out_path: str | os.PathLike
         diff = max(float(np.abs(check[t] - rewards[t][rows]).max()) for t in tasks)
         metrics["max_abs_diff_vectorised_vs_physics"] = diff
         if diff > config.tolerance:
-            raise RuntimeError(f"{dataset_path}: vectorised and physics-replay rewards differ by {diff:.3g}")
+            raise DatasetError(f"{dataset_path}: vectorised and physics-replay rewards differ by {diff:.3g}")
     for task in tasks:
         metrics[f"reward_mean_{task}"] = float(rewards[task].mean())
     attrs = {"dataset_content_sha256": dataset.attrs["content_sha256"], "source_task": own_task,

@@ -20,7 +20,7 @@ import torch
 from mop_core.agents.pbrl import PBRL, PBRLConfig, make_actor
 from mop_core.agents.pbrl_multitask import MultiTaskPBRL
 from mop_core.artifacts import load_checkpoint, package_versions, save_checkpoint, state_sha256, write_curve
-from mop_core.config import from_mapping, to_dict
+from mop_core.config import InputFileError, from_mapping, require, to_dict
 from mop_core.data import TransitionTensors, read_dataset, read_relabel, write_json
 from mop_core.envs import ACT_DIM, OBS_DIM
 from mop_core.nn import EnsembleCritic
@@ -56,12 +56,14 @@ class DataSource:
     dataset: Path
     relabel: Path
     reward_task: str
+    source_task: str | None = None  # the task whose behaviour policy collected the file (checked if set)
+    level: str | None = None  # the file's dataset level (checked if set)
 
 
 def load_source(source: DataSource, episode_length: int, device: torch.device | str = "cpu"
                 ) -> tuple[TransitionTensors, dict]:
     """The transitions as tensors and a summary (content hash, level, mean episode return)."""
-    dataset = read_dataset(source.dataset)
+    dataset = read_dataset(source.dataset, verify_checksum=True, task=source.source_task, level=source.level)
     rewards = read_relabel(source.relabel, dataset, source.reward_task)[source.reward_task]
     returns = trajectory_returns(rewards, dataset.arrays["timeouts"] | dataset.arrays["terminals"], episode_length)
     summary = {"dataset": str(source.dataset), "source_task": str(dataset.attrs["task"]),
@@ -71,6 +73,12 @@ def load_source(source: DataSource, episode_length: int, device: torch.device | 
                "return_std": float(returns.std()) if len(returns) else float("nan"),
                "complete_episodes": int(len(returns))}
     return TransitionTensors.from_arrays(dataset.arrays, rewards, device), summary
+
+
+def check_batch_fits(config: TeacherConfig, summary: dict) -> None:
+    """A PBRL batch (drawn with replacement) larger than its dataset is a typo, not an experiment."""
+    require(config.pbrl.batch_size <= summary["transitions"], "pbrl.batch_size",
+            f"at most the {summary['transitions']} transitions of {summary['dataset']}", config.pbrl.batch_size)
 
 
 def run_seeds(study_seed: int, name: Sequence[str], seed: int) -> dict[str, int]:
@@ -87,6 +95,7 @@ def train_teacher(task: str, source: DataSource, config: TeacherConfig, seed: in
     check_task_list([task], "task")
     device = torch.device(device)
     data, summary = load_source(source, config.episode_length, "cpu")
+    check_batch_fits(config, summary)
     level = summary["level"]
     seeds = run_seeds(study_seed, [task, summary["source_task"], level], seed)
     agent = PBRL(config.pbrl, OBS_DIM, ACT_DIM, seeds["agent"], device)
@@ -140,6 +149,8 @@ def train_multitask(tasks: Sequence[str], sources: Sequence[DataSource], config:
         raise ValueError(f"sources: expected one per task ({len(tasks)}), got {len(sources)}")
     device = torch.device(device)
     loaded = [load_source(source, config.episode_length, "cpu") for source in sources]
+    for _, summary in loaded:
+        check_batch_fits(config, summary)
     level = "+".join(summary["level"] for _, summary in loaded)
     seeds = run_seeds(study_seed, ["multitask", *tasks, level], seed)
     agent = MultiTaskPBRL(config.pbrl, tasks, OBS_DIM, ACT_DIM, seeds["agent"], device)
@@ -219,6 +230,29 @@ def load_teacher(path: str | Path) -> Teacher:
     critic.load_state_dict(payload["critic"])
     return Teacher(payload["task"], payload["level"], payload["seed"], config, actor.eval().requires_grad_(False),
                    critic.eval().requires_grad_(False), payload["actor_sha256"], dict(payload["metrics"]))
+
+
+def check_teacher_checkpoint(path: str | Path, task: str, level: str, seed: int, study_seed: int,
+                             config: TeacherConfig, dataset_sha256: str) -> None:
+    """Refuse a teacher checkpoint that was not trained as the study now says: another task, level,
+    seed, study seed, PBRL setting, number of steps, episode length or dataset content. Raises
+    InputFileError naming the file and the first difference (a stale or copied checkpoint would
+    otherwise be distilled without a word)."""
+    payload = load_checkpoint(path, TEACHER_KIND)
+    stored_config = payload.get("pbrl_config", {})
+    expected = {"task": task, "level": level, "seed": seed, "study_seed": study_seed,
+                "episode_length": config.episode_length}
+    found = {key: payload.get(key) for key in expected}
+    expected |= {f"pbrl.{key}": value for key, value in to_dict(config.pbrl).items()}
+    found |= {f"pbrl.{key}": stored_config.get(key) for key in to_dict(config.pbrl)}
+    expected["schedule.steps"] = config.schedule.steps
+    found["schedule.steps"] = payload.get("metrics", {}).get("gradient_steps")
+    expected["dataset content_sha256"] = dataset_sha256
+    found["dataset content_sha256"] = payload.get("dataset", {}).get("content_sha256")
+    for key, value in expected.items():
+        if found[key] != value:
+            raise InputFileError(f"{path}: teacher trained with {key}={found[key]!r}, the study expects {value!r}; "
+                                 "rerun `dvc repro train_teachers`")
 
 
 @dataclass

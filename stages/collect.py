@@ -15,8 +15,18 @@ import multiprocessing
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
+from typing import Any
 
-from common import RESULTS, behaviour_checkpoint, dataset_file, load_params, run_stage, section, study_config
+from common import (
+    RESULTS,
+    StudyConfig,
+    behaviour_checkpoint,
+    dataset_file,
+    load_params,
+    run_stage,
+    section,
+    study_config,
+)
 
 from mop_core.collect import LEVELS, CollectConfig, CollectPaths, collect_task
 from mop_core.config import from_mapping, require
@@ -26,12 +36,21 @@ from mop_core.runtime import progress_enabled, resolve_device, set_threads
 
 @dataclass(frozen=True)
 class ParallelConfig:
+    """collect.parallel: how many task processes run at once and their torch threads."""
+
     workers: int = 2  # task processes at a time (use the number of cores)
     threads_per_worker: int = 1  # torch threads in each process
 
     def __post_init__(self) -> None:
         require(self.workers >= 1, "workers", "a positive integer", self.workers)
         require(self.threads_per_worker >= 1, "threads_per_worker", "a positive integer", self.threads_per_worker)
+
+
+def collect_configs(params: dict[str, Any], study: StudyConfig) -> tuple[ParallelConfig, CollectConfig]:
+    raw = dict(section(params, "collect"))
+    parallel = from_mapping(ParallelConfig, raw.pop("parallel", {}), "collect.parallel")
+    config = from_mapping(CollectConfig, raw | {"episode_length": study.episode_length}, "collect")
+    return parallel, config
 
 
 def paths_for(task: str) -> CollectPaths:
@@ -52,9 +71,7 @@ def _worker(task: str, config: CollectConfig, seed: int, device: str, progress: 
 def main() -> None:
     params = load_params()
     study = study_config(params)
-    raw = dict(section(params, "collect"))
-    parallel = from_mapping(ParallelConfig, raw.pop("parallel", {}), "collect.parallel")
-    config = from_mapping(CollectConfig, raw | {"episode_length": study.episode_length}, "collect")
+    parallel, config = collect_configs(params, study)
     device = str(resolve_device(study.device, "study.device"))
     progress = progress_enabled(study.progress)
 

@@ -14,13 +14,16 @@ from typing import Any
 import yaml
 
 from mop_core.artifacts import RunPaths
-from mop_core.config import ConfigError, from_mapping, require
+from mop_core.config import ConfigError, InputFileError, from_mapping, require
 from mop_core.data import LEVELS
 from mop_core.tasks import check_task_list
 
 PARAMS = Path("params.yaml")
+SECTIONS = ("study", "collect", "relabel", "train_teachers", "train_multitask", "distill", "eval",
+            "shared_computation")
 DATA = Path("data")
 RESULTS = Path("results")
+PARAMS_CHECKED = DATA / "params_checked.txt"  # the params stage's output; every stage depends on it
 
 
 @dataclass(frozen=True)
@@ -47,11 +50,22 @@ class StudyConfig:
 def load_params(path: Path = PARAMS) -> dict[str, Any]:
     if not path.is_file():
         raise ConfigError(f"{path}: parameter file not found (run from the repository root)")
-    with path.open() as f:
-        params = yaml.safe_load(f)
+    try:
+        with path.open() as f:
+            params = yaml.safe_load(f)
+    except yaml.YAMLError as err:
+        raise ConfigError(f"{path}: not valid YAML: {' '.join(str(err).split())}") from None
     if not isinstance(params, dict):
         raise ConfigError(f"{path}: expected a mapping of sections, got {type(params).__name__}")
+    check_sections(params, path)
     return params
+
+
+def check_sections(params: dict[str, Any], path: Path = PARAMS) -> None:
+    """Refuse a section no stage reads (a misspelled ``distil:`` would otherwise be ignored)."""
+    unknown = sorted(set(params) - set(SECTIONS), key=str)
+    if unknown:
+        raise ConfigError(f"{unknown[0]}: unknown section in {path}; known: {', '.join(SECTIONS)}")
 
 
 def section(params: dict[str, Any], name: str) -> Any:
@@ -96,9 +110,10 @@ def require_inputs(paths, stage: str) -> None:
 
 
 def run_stage(main) -> None:
-    """Run a stage's ``main``; a configuration error prints one clear line and exits with status 2."""
+    """Run a stage's ``main``; a configuration error or a bad input file prints one clear line (naming the
+    key or the file) and exits with status 2."""
     try:
         main()
-    except ConfigError as err:
+    except (ConfigError, InputFileError) as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)

@@ -14,11 +14,14 @@ import argparse
 
 from common import dataset_file, load_params, require_inputs, run_paths, run_stage, study_config, teacher_name
 from distill_config import distill_config, distill_grid, pairing_levels, student_name, teacher_actor
+from teacher_config import teacher_config
 
 from mop_core.config import ConfigError, require
+from mop_core.data import read_dataset_attrs
 from mop_core.distill.losses import LOSSES
 from mop_core.distill.run import StudentSources, distill_student
 from mop_core.runtime import progress_enabled, resolve_device, set_threads
+from mop_core.teachers import check_teacher_checkpoint
 
 
 def main() -> None:
@@ -43,6 +46,9 @@ def main() -> None:
     datasets = tuple(dataset_file(t, lv) for t, lv in zip(study.tasks, levels))
     require_inputs(teachers, "train_teachers")
     require_inputs(datasets, "collect")
+    for task, level, teacher, dataset in zip(study.tasks, levels, teachers, datasets):
+        check_teacher_checkpoint(teacher, task, level, grid.teacher_seed, study.seed,
+                                 teacher_config(params, study, actor), read_dataset_attrs(dataset)["content_sha256"])
 
     set_threads(grid.threads)
     name = student_name(args.loss, args.pairing, args.seed)

@@ -12,7 +12,7 @@ from typing import Any
 
 from common import StudyConfig, section
 
-from mop_core.config import ConfigError, from_mapping, require
+from mop_core.config import ConfigError, from_mapping, require, require_unique
 from mop_core.distill.distiller import DistillConfig
 from mop_core.distill.losses import LOSSES
 from mop_core.training import TrainSchedule
@@ -61,8 +61,17 @@ def distill_grid(params: dict[str, Any], study: StudyConfig) -> DistillGrid:
     for pairing in grid["pairings"]:
         pairing_levels(str(pairing), study, f"{SECTION}.pairings")
     for seed in grid["seeds"]:
-        require(isinstance(seed, int) and seed >= 0, f"{SECTION}.seeds", "non-negative integers", grid["seeds"])
-    teachers = section(params, "train_teachers")
+        require(isinstance(seed, int) and not isinstance(seed, bool) and seed >= 0, f"{SECTION}.seeds",
+                "non-negative integers", grid["seeds"])
+    for key in ("losses", "pairings", "seeds"):
+        require_unique(grid[key], f"{SECTION}.{key}")
+    same = {}
+    for pairing in grid["pairings"]:  # 'medium' and 'medium+medium' name the same students
+        levels = pairing_levels(str(pairing), study, f"{SECTION}.pairings")
+        require(levels not in same, f"{SECTION}.pairings", f"distinct pairings ({same.get(levels)!r} and "
+                f"{pairing!r} both pair the tasks with {'+'.join(levels)})", grid["pairings"])
+        same[levels] = pairing
+    teachers = section(params, "train_teachers")  # typed and checked by the params stage (study_params.py)
     require(grid["teacher_seed"] in teachers.get("seeds", []), f"{SECTION}.teacher_seed",
             f"one of train_teachers.seeds {teachers.get('seeds')}", grid["teacher_seed"])
     for loss in grid["losses"]:
@@ -70,7 +79,8 @@ def distill_grid(params: dict[str, Any], study: StudyConfig) -> DistillGrid:
         require(actor in teachers.get("actors", []), f"{SECTION}.losses",
                 f"{actor} teachers for the {loss} loss: add {actor} to train_teachers.actors", grid["losses"])
     threads = grid["threads"] if grid["threads"] is not None else 1
-    require(isinstance(threads, int) and threads >= 1, f"{SECTION}.threads", "a positive integer", threads)
+    require(isinstance(threads, int) and not isinstance(threads, bool) and threads >= 1, f"{SECTION}.threads",
+            "a positive integer", threads)
     schedule = from_mapping(TrainSchedule, grid["schedule"] or {}, f"{SECTION}.schedule")
     return DistillGrid(tuple(grid["losses"]), tuple(str(p) for p in grid["pairings"]), tuple(grid["seeds"]),
                        grid["teacher_seed"], threads, schedule)

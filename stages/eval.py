@@ -20,7 +20,6 @@ results/eval/student_curves.png.
 from __future__ import annotations
 
 import itertools
-import json
 import time
 from collections import defaultdict
 
@@ -37,9 +36,10 @@ from common import (
     teacher_name,
 )
 from distill_config import DistillGrid, distill_grid, pairing_levels, student_name, teacher_actor
+from teacher_config import TeacherGrid, multitask_grid, teacher_grid
 
 from mop_core.config import ConfigError, from_mapping
-from mop_core.data import atomic_path, write_json
+from mop_core.data import atomic_path, read_json, write_json
 from mop_core.evaluation import (
     EvalConfig,
     Job,
@@ -64,26 +64,26 @@ def study_jobs(params: dict, study, grid: DistillGrid, config: EvalConfig
                ) -> tuple[list[Job], dict[str, dict[str, str]]]:
     """Every evaluation job of the study, and for each student/baseline group per task the teacher
     group it is compared with (students: the teachers of seed ``distill.teacher_seed`` they learned from)."""
-    teachers = section(params, "train_teachers")
-    multitask = section(params, "train_multitask")
+    teachers = teacher_grid(params)
+    multitask = multitask_grid(params, study)
     jobs: list[Job] = []
     reference: dict[str, dict[str, str]] = defaultdict(dict)
     for task in study.tasks:
         for level in ("medium", "expert"):
             jobs.append(Job(f"behaviour_{level}", 0, PolicySpec("behaviour", behaviour_checkpoint(task, level)), task))
         for level in study.levels:
-            for actor in teachers["actors"]:
-                for seed in teachers["seeds"]:
+            for actor in teachers.actors:
+                for seed in teachers.seeds:
                     path = run_paths(teacher_name(task, level, actor, seed)).checkpoint
                     jobs.append(Job(f"teacher_{level}_{actor}", seed, PolicySpec("teacher", path), task))
-            if "deterministic" in teachers["actors"]:
+            if "deterministic" in teachers.actors:
                 cross = run_paths(teacher_name(task, level, "deterministic", grid.teacher_seed)).checkpoint
                 for other in study.tasks:
                     if other != task:
                         jobs.append(Job(f"cross_{level}_{task}", grid.teacher_seed, PolicySpec("teacher", cross),
                                         other))
-    for level in multitask["levels"]:
-        for seed in multitask["seeds"]:
+    for level in multitask.levels:
+        for seed in multitask.seeds:
             path = run_paths(f"{level}-{seed}", "multitask").checkpoint
             for task in study.tasks:
                 jobs.append(Job(f"multitask_{level}", seed, PolicySpec("multitask", path, task), task))
@@ -104,9 +104,13 @@ def study_jobs(params: dict, study, grid: DistillGrid, config: EvalConfig
     return jobs, reference
 
 
+def eval_config(params: dict) -> EvalConfig:
+    return from_mapping(EvalConfig, section(params, "eval"), "eval")
+
+
 def normalisers(study) -> dict[str, dict]:
     """Per task: R_random (measured by the collect stage) and R_expert (published, mop_core.tasks)."""
-    collect = json.loads(COLLECT_METRICS.read_text())
+    collect = read_json(COLLECT_METRICS)
     out = {}
     for task in study.tasks:
         if "random_return" not in collect.get(task, {}):
@@ -117,11 +121,11 @@ def normalisers(study) -> dict[str, dict]:
     return out
 
 
-def cross_task_table(summary: dict, study, teachers: dict, teacher_seed: int) -> dict:
+def cross_task_table(summary: dict, study, teachers: TeacherGrid, teacher_seed: int) -> dict:
     """``[level][teacher task][evaluation task]``: mean return of task i's deterministic teacher (seed
     ``teacher_seed``) on task j's reward."""
     table: dict = {}
-    if "deterministic" not in teachers["actors"]:
+    if "deterministic" not in teachers.actors:
         return table
     for level in study.levels:
         table[level] = {}
@@ -175,7 +179,7 @@ def aggregates(scores: dict, reference: dict, grid: DistillGrid, config: EvalCon
 def main() -> None:
     params = load_params()
     study = study_config(params)
-    config = from_mapping(EvalConfig, section(params, "eval"), "eval")
+    config = eval_config(params)
     grid = distill_grid(params, study)
     jobs, reference = study_jobs(params, study, grid, config)
     require_inputs(sorted({job.policy.path for job in jobs}), "distill")
@@ -209,7 +213,7 @@ def main() -> None:
         metrics[task] = entry
     metrics["normalisation"] = norms
     metrics["aggregate"] = aggregates(scores, reference, grid, config, study.seed)
-    metrics["cross_task"] = cross_task_table(summary, study, section(params, "train_teachers"), grid.teacher_seed)
+    metrics["cross_task"] = cross_task_table(summary, study, teacher_grid(params), grid.teacher_seed)
     env_steps = sum(r.size for r in results) * study.episode_length
     metrics["eval"] = {"seconds": round(seconds, 1), "jobs": len(jobs), "episodes_per_job": config.episodes,
                        "gaussian_student_action": config.gaussian_student_action,

@@ -8,6 +8,7 @@ exactness checks (recomputed vs stored dm_control rewards; vectorised vs physics
 from __future__ import annotations
 
 import time
+from typing import Any
 
 from common import RESULTS, dataset_file, load_params, relabel_file, run_stage, section, study_config
 
@@ -17,10 +18,14 @@ from mop_core.relabel import RelabelConfig, relabel_dataset
 from mop_core.runtime import set_threads
 
 
+def relabel_config(params: dict[str, Any]) -> RelabelConfig:
+    return from_mapping(RelabelConfig, section(params, "relabel"), "relabel")
+
+
 def main() -> None:
     params = load_params()
     study = study_config(params)
-    config = from_mapping(RelabelConfig, section(params, "relabel"), "relabel")
+    config = relabel_config(params)
     sources = [(task, level) for task in study.tasks for level in study.levels]
     missing = [str(dataset_file(t, lv)) for t, lv in sources if not dataset_file(t, lv).is_file()]
     if missing:
@@ -30,7 +35,7 @@ def main() -> None:
     metrics = {}
     for task, level in sources:
         metrics[f"{task}-{level}"] = relabel_dataset(dataset_file(task, level), relabel_file(task, level),
-                                                     study.tasks, config)
+                                                     study.tasks, config, source_task=task, level=level)
     metrics["stage_seconds"] = round(time.perf_counter() - started, 1)
     write_json(RESULTS / "relabel" / "metrics.json", metrics)
     print(f"relabelled {len(sources)} datasets under {len(study.tasks)} tasks in {metrics['stage_seconds']} s")

@@ -9,13 +9,14 @@ its section says so. Writes results/report.md and results/report/*.png.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from common import RESULTS, load_params, run_paths, run_stage, section, study_config, teacher_name
 from distill_config import distill_grid, pairing_levels, student_name
+from teacher_config import multitask_grid, teacher_grid
 
 from mop_core.data import atomic_path
+from mop_core.data import read_json as read_json_file
 from mop_core.plots import read_curve
 from mop_core.report import Run, StudyResults, render_report
 
@@ -24,7 +25,8 @@ FIGURES = RESULTS / "report"
 
 
 def read_json(path: Path) -> dict | None:
-    return json.loads(path.read_text()) if path.is_file() else None
+    """A result file's content, or None where that part of the study was not run."""
+    return read_json_file(path) if path.is_file() else None
 
 
 def load_run(name: str, family: str, key: dict, seed: int) -> Run | None:
@@ -68,7 +70,7 @@ def main() -> None:
     params = load_params()
     study = study_config(params)
     grid = distill_grid(params, study)
-    teachers_params, multitask_params = section(params, "train_teachers"), section(params, "train_multitask")
+    teachers_params, multitask_params = teacher_grid(params), multitask_grid(params, study)
     results = StudyResults(tasks=list(study.tasks), levels=list(study.levels), settings={})
     results.collect = read_json(RESULTS / "collect" / "metrics.json")
     for task in study.tasks:
@@ -78,13 +80,13 @@ def main() -> None:
                 results.datasets[f"{task}-{level}"] = dataset
     for task in study.tasks:
         for level in study.levels:
-            for actor in teachers_params["actors"]:
-                for seed in teachers_params["seeds"]:
+            for actor in teachers_params.actors:
+                for seed in teachers_params.seeds:
                     run = load_run(teacher_name(task, level, actor, seed), "teachers",
                                    {"task": task, "level": level, "actor": actor}, seed)
                     results.teachers += [run] if run else []
-    for level in multitask_params["levels"]:
-        for seed in multitask_params["seeds"]:
+    for level in multitask_params.levels:
+        for seed in multitask_params.seeds:
             run = load_run(f"{level}-{seed}", "multitask", {"level": level}, seed)
             results.multitask += [run] if run else []
     for loss in grid.losses:

@@ -17,7 +17,6 @@ measures of an untrained copy of each group's first student on its states are th
 
 from __future__ import annotations
 
-import json
 import time
 
 import torch
@@ -25,7 +24,7 @@ from common import RESULTS, load_params, require_inputs, run_paths, run_stage, s
 from distill_config import distill_grid, student_name
 
 from mop_core.config import from_mapping, require
-from mop_core.data import write_json
+from mop_core.data import read_json, write_json
 from mop_core.distill.run import load_student
 from mop_core.plots import metric_curves, read_curve, sorted_activations
 from mop_core.runtime import derive_seeds, progress_enabled, set_threads
@@ -43,13 +42,19 @@ OUT = RESULTS / "shared_computation"
 SECTION = "shared_computation"
 
 
+def shared_computation_config(params: dict) -> tuple[int, SharedComputationConfig]:
+    """The measurement's torch threads and the rollouts' settings."""
+    raw = dict(section(params, SECTION))
+    threads = raw.pop("threads", 1)
+    require(isinstance(threads, int) and not isinstance(threads, bool) and threads >= 1, f"{SECTION}.threads",
+            "a positive integer", threads)
+    return threads, from_mapping(SharedComputationConfig, raw, SECTION)
+
+
 def main() -> None:
     params = load_params()
     study = study_config(params)
-    raw = dict(section(params, SECTION))
-    threads = raw.pop("threads", 1)
-    require(isinstance(threads, int) and threads >= 1, f"{SECTION}.threads", "a positive integer", threads)
-    config = from_mapping(SharedComputationConfig, raw, SECTION)
+    threads, config = shared_computation_config(params)
     require(len(study.tasks) >= 2, "study.tasks", "at least two tasks to compare task ids", list(study.tasks))
     grid = distill_grid(params, study)
     groups = {f"{loss}_{pairing}": [student_name(loss, pairing, seed) for seed in grid.seeds]
@@ -96,7 +101,7 @@ def main() -> None:
     write_json(OUT / "metrics.json", metrics)
 
     curves = {name: read_curve(paths[name].curve) for name in names}
-    tau_records = {name: json.loads(paths[name].metrics.read_text()).get("per_state_tau") for name in names}
+    tau_records = {name: read_json(paths[name].metrics).get("per_state_tau") for name in names}
     keys = sorted({key for record in tau_records.values() if record for key in record["at_init"]},
                   key=lambda k: (k.split("_layer")[0][-1] != "a", int(k.split("_layer")[1])))  # tau-a panels first
     if keys:

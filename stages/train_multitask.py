@@ -21,7 +21,7 @@ from common import (
     run_stage,
     study_config,
 )
-from teacher_config import check_level_and_seed, teacher_config, training_threads
+from teacher_config import check_level_and_seed, multitask_grid, teacher_config, training_threads
 
 from mop_core.config import ConfigError
 from mop_core.runtime import progress_enabled, resolve_device, set_threads
@@ -37,12 +37,14 @@ def main() -> None:
     params = load_params()
     study = study_config(params)
     check_level_and_seed(study, args.level, args.seed)
+    multitask_grid(params, study)  # the section's keys, checked even when the stage is run by hand
     if len(study.tasks) < 2:
         raise ConfigError(f"study.tasks: the multi-task baseline needs at least two tasks, got {list(study.tasks)}")
     config = teacher_config(params, study)
     threads = training_threads(params)
     device = resolve_device(study.device, "study.device")
-    sources = [DataSource(dataset_file(t, args.level), relabel_file(t, args.level), t) for t in study.tasks]
+    sources = [DataSource(dataset_file(t, args.level), relabel_file(t, args.level), t, t, args.level)
+               for t in study.tasks]
     require_inputs([p for s in sources for p in (s.dataset, s.relabel)], "relabel")
 
     set_threads(threads)

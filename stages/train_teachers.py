@@ -46,7 +46,8 @@ def main() -> None:
     config = teacher_config(params, study, args.actor)
     threads = training_threads(params)
     device = resolve_device(study.device, "study.device")
-    source = DataSource(dataset_file(args.task, args.level), relabel_file(args.task, args.level), args.task)
+    source = DataSource(dataset_file(args.task, args.level), relabel_file(args.task, args.level), args.task,
+                        args.task, args.level)
     require_inputs([source.dataset, source.relabel], "relabel")
 
     set_threads(threads)

@@ -152,7 +152,9 @@ def _invalidated_by(repo: Path, section: str, key: str, value) -> set[str]:
     node[last] = value
     (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     try:
-        return _stages_run(_run(["dvc", "repro", "--dry"], repo).stdout)
+        stages = _stages_run(_run(["dvc", "repro", "--dry"], repo).stdout)
+        assert "params" in stages  # every params edit is checked first, whole file; the rest follows
+        return stages - {"params"}
     finally:
         (repo / "params.yaml").write_text(original)
 
@@ -170,8 +172,8 @@ def test_each_parameter_section_invalidates_only_its_stages(repo):
 
 def test_exp_run_of_distill_param_reruns_only_distill_and_what_reads_students(repo):
     out = _run(["dvc", "exp", "run", "-S", "distill.learning_rate=0.002"], repo).stdout
-    assert _stages_run(out) == {"distill@mse-medium-0", "distill@q-medium-0", "distill@kl-medium-0", "eval",
-                                "shared_computation", "report"}
+    assert _stages_run(out) == {"params", "distill@mse-medium-0", "distill@q-medium-0", "distill@kl-medium-0",
+                                "eval", "shared_computation", "report"}
     metrics = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
     assert "student_mse_medium" in metrics["stand"]
 
@@ -254,3 +256,23 @@ def test_bad_parameter_fails_before_compute_and_names_the_key(repo, tmp_path):
     result = _run(student, work, check=False)
     assert "missing input data/teachers/stand-medium-deterministic-0.pt" in result.stderr
     assert not (work / "data" / "students").exists()
+
+
+def test_a_bad_param_stops_dvc_repro_before_any_output_is_deleted(repo):
+    """DVC deletes a stage's outputs before its command runs; the params stage fails first, so a typo
+    anywhere costs nothing (before issue 12 this deleted distill's checkpoints and cache: false metrics)."""
+    original = (repo / "params.yaml").read_text()
+    outputs = [repo / "data" / "students" / "mse-medium-0.pt", repo / "results" / "students" / "metrics" /
+               "mse-medium-0.json", repo / "results" / "eval" / "metrics.json", repo / "results" / "report.md"]
+    before = {path: path.read_bytes() for path in outputs}
+    params = yaml.safe_load(original)
+    params["distill"]["learning_rate"] = float("inf")
+    (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    try:
+        result = _run(["dvc", "repro"], repo, check=False)
+    finally:
+        (repo / "params.yaml").write_text(original)
+    assert result.returncode != 0
+    assert "error: distill.learning_rate: expected a finite number, got inf" in result.stderr + result.stdout
+    assert _stages_run(result.stdout) == {"params"}
+    assert {path: path.read_bytes() for path in outputs} == before

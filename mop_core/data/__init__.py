@@ -7,6 +7,8 @@ from mop_core.data.hdf5 import (
                                 DatasetError,
                                 atomic_path,
                                 read_dataset,
+                                read_dataset_attrs,
+                                read_json,
                                 read_relabel,
                                 write_dataset,
                                 write_json,
@@ -14,4 +16,5 @@ from mop_core.data.hdf5 import (
 )
 
 __all__ = ["Batch", "Dataset", "DatasetError", "LEVELS", "ReplayBuffer", "TransitionTensors", "atomic_path",
-           "read_dataset", "read_relabel", "write_dataset", "write_json", "write_relabel"]
+           "read_dataset", "read_dataset_attrs", "read_json", "read_relabel", "write_dataset", "write_json",
+           "write_relabel"]

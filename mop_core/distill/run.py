@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from mop_core.artifacts import load_checkpoint, package_versions, save_checkpoint, state_sha256, write_curve
-from mop_core.config import from_mapping, to_dict
+from mop_core.config import from_mapping, require, to_dict
 from mop_core.data import write_json
 from mop_core.distill.distiller import DistillConfig, Distiller
 from mop_core.distill.states import TaskStates, offline_states, online_states, task_states
@@ -78,6 +78,8 @@ def build_states(sources: StudentSources, teachers: Sequence[Teacher], config: D
             seeds = [task_seeds["episodes"] + j for j in range(episodes)]
             states = online_states(teacher.act, task, config.num_states, episode_length, seeds, rollout_envs)
             source = {"source": "online", "episodes": episodes, "first_seed": seeds[0], "states": len(states)}
+        require(config.batch_size <= len(states), "batch_size",
+                f"at most the {len(states)} states of {task} ({source.get('dataset', 'online')})", config.batch_size)
         result.append(task_states(task, states, teacher.actor, source, device))
     return result
 

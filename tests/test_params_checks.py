@@ -1,0 +1,102 @@
+"""The whole params file is checked before any compute (stages/study_params.py): every bad value
+below was accepted silently before issue 12, each now fails with one line naming its key."""
+
+from __future__ import annotations
+
+import copy
+import re
+import sys
+
+import pytest
+from conftest import ROOT
+
+sys.path.insert(0, str(ROOT / "stages"))
+
+from study_params import check_params  # noqa: E402
+
+from mop_core.config import ConfigError  # noqa: E402
+
+
+def _set(params: dict, key: str, value) -> dict:
+    params = copy.deepcopy(params)
+    *path, last = key.split(".")
+    node = params
+    for part in path:
+        node = node.setdefault(part, {})
+    node[last] = value
+    return params
+
+
+def test_the_profiles_pass(tiny_params):
+    check_params(tiny_params)
+    import yaml
+    for path in (ROOT / "params.yaml", ROOT / "profiles" / "thesis.yaml"):
+        check_params(yaml.safe_load(path.read_text()))
+
+
+NON_FINITE = [
+    ("train_teachers.pbrl.learning_rate", float("inf")),
+    ("collect.td3.learning_rate", float("inf")),
+    ("distill.learning_rate", float("inf")),
+    ("train_teachers.pbrl.target_entropy", float("nan")),
+    ("collect.schedule.medium_target_return", float("nan")),
+    ("collect.datasets.action_noise", float("inf")),
+    ("relabel.tolerance", float("inf")),
+    ("train_teachers.pbrl.log_std_max", float("inf")),
+    ("distill.student.log_std_min", float("-inf")),
+    ("train_teachers.pbrl.gamma", "nan"),  # a quoted 'nan': YAML gives the string
+]
+
+
+@pytest.mark.parametrize("key,value", NON_FINITE)
+def test_non_finite_numbers_are_rejected(tiny_params, key, value):
+    with pytest.raises(ConfigError, match=rf"^{key}: expected a finite number"):
+        check_params(_set(tiny_params, key, value))
+
+
+UNKNOWN = [
+    ("train_teachers.pbr", {"batch_size": 64}, "train_teachers.pbr: unknown parameter"),
+    ("train_teachers.thread", 2, "train_teachers.thread: unknown parameter"),
+    ("train_multitask.level", ["medium"], "train_multitask.level: unknown parameter"),
+    ("distill.step_per_tasks", True, "distill.step_per_tasks: unknown parameter"),
+    ("shared_computation.episode", 3, "shared_computation.episode: unknown parameter"),
+    ("distil", {"seeds": [0]}, "distil: unknown section in params.yaml"),
+]
+
+
+@pytest.mark.parametrize("key,value,message", UNKNOWN)
+def test_unknown_keys_and_sections_are_rejected(tiny_params, key, value, message):
+    with pytest.raises(ConfigError, match="^" + re.escape(message)):
+        check_params(_set(tiny_params, key, value))
+
+
+REPEATED = [
+    ("distill.seeds", [0, 0], "distill.seeds: expected a list without repeats"),
+    ("distill.losses", ["mse", "mse"], "distill.losses: expected a list without repeats"),
+    ("distill.pairings", ["medium", "medium+medium"], "distill.pairings: expected distinct pairings"),
+    ("train_teachers.seeds", [0, 1, 0], "train_teachers.seeds: expected a list without repeats"),
+    ("train_teachers.actors", ["gaussian", "deterministic", "gaussian"],
+     "train_teachers.actors: expected a list without repeats"),
+    ("train_multitask.levels", ["medium", "medium"], "train_multitask.levels: expected a list without repeats"),
+    ("train_multitask.seeds", [1, 1], "train_multitask.seeds: expected a list without repeats"),
+    ("train_multitask.levels", ["expert"], "train_multitask.levels[0]: expected one of study.levels"),
+]
+
+
+@pytest.mark.parametrize("key,value,message", REPEATED)
+def test_repeated_or_unstudied_grid_entries_are_rejected(tiny_params, key, value, message):
+    with pytest.raises(ConfigError, match="^" + re.escape(message)):
+        check_params(_set(tiny_params, key, value))
+
+
+def test_sizes_are_bounded_by_the_data_the_study_will_have(tiny_params):
+    # the tiny medium datasets hold 3 episodes of 50 steps
+    with pytest.raises(ConfigError, match=r"^train_teachers.pbrl.batch_size: expected at most the 150 transitions"):
+        check_params(_set(tiny_params, "train_teachers.pbrl.batch_size", 10**9))
+    with pytest.raises(ConfigError, match=r"^distill.batch_size: expected at most the 150 states"):
+        check_params(_set(tiny_params, "distill.batch_size", 151))
+    with pytest.raises(ConfigError, match=r"^distill.batch_size: expected at most the 40 states"):
+        check_params(_set(_set(tiny_params, "distill.num_states", 40), "distill.batch_size", 41))
+    with pytest.raises(ConfigError, match=r"^collect.td3.batch_size: expected at most the 400 transitions"):
+        check_params(_set(tiny_params, "collect.td3.batch_size", 10**9))
+    check_params(_set(tiny_params, "distill.batch_size", 150))  # the bound itself is allowed
