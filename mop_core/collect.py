@@ -32,7 +32,7 @@ from mop_core.config import require, to_dict
 from mop_core.data import LEVELS, ReplayBuffer, write_dataset, write_json
 from mop_core.envs import ACT_DIM, OBS_DIM, PHYSICS_DIM, WalkerEnv
 from mop_core.rollout import collect_episodes, episode_returns, trajectory_returns
-from mop_core.runtime import derive_seeds
+from mop_core.runtime import derive_seeds, require_finite
 from mop_core.tasks import REWARD_FEATURES, get_task
 
 
@@ -180,7 +180,9 @@ def train_behaviour(task: str, config: CollectConfig, seed: int, device: torch.d
         obs = env.reset() if step.timeout else step.observation
         if t < sched.warmup_steps:
             continue
-        last_losses = last_losses | agent.update(buffer.sample(config.td3.batch_size, sampler))
+        losses = agent.update(buffer.sample(config.td3.batch_size, sampler))
+        require_finite(losses, f"collect {task} (TD3)", agent.updates)
+        last_losses = last_losses | losses
         g = agent.updates
         bar.update(1)
         if g % sched.eval_every == 0 or g == sched.total_steps or g == sched.medium_step:

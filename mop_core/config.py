@@ -27,6 +27,11 @@ class InputFileError(ValueError):
     Stage scripts report it like a ConfigError: one line, exit status 2."""
 
 
+class OutputFileError(RuntimeError):
+    """An output could not be written (e.g. the disk is full); the message starts with its path and says
+    that the previous file, if any, is untouched."""
+
+
 def first_line(err: BaseException) -> str:
     """An exception as one line: its type and the first line of its message."""
     lines = str(err).strip().splitlines()

@@ -30,7 +30,7 @@ from tqdm import tqdm
 
 from mop_core.config import InputFileError, require
 from mop_core.rollout import episode_returns
-from mop_core.runtime import derive_seeds, set_threads
+from mop_core.runtime import derive_seeds, die_with_parent, set_threads
 from mop_core.statistics import (
     MIN_SEEDS_FOR_SEED_CI,
     confidence_interval,
@@ -140,7 +140,8 @@ def parallel_map(fn: Callable, args: Sequence[tuple], workers: int, desc: str, p
             results.append(fn(*a))
             bar.update(1)
     else:
-        with ProcessPoolExecutor(max_workers=min(workers, len(args), os.cpu_count() or 1)) as pool:
+        with ProcessPoolExecutor(max_workers=min(workers, len(args), os.cpu_count() or 1),
+                                 initializer=die_with_parent) as pool:
             for result in pool.map(_in_worker, [(fn, a) for a in args]):
                 results.append(result)
                 bar.update(1)

@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import ctypes
+import math
 import os
 import random
+import signal
+import sys
 import zlib
 from typing import Sequence
 
@@ -37,6 +41,34 @@ def set_threads(threads: int) -> None:
         torch.set_num_interop_threads(threads)
     except RuntimeError:  # can only be set once, before any inter-op parallel work started
         pass
+
+
+class TrainingDivergedError(RuntimeError):
+    """A loss or weight became NaN or infinite; the message names the run, the step and the value."""
+
+
+def require_finite(values: dict[str, float], run: str, step: int, kept: str = "") -> None:
+    """Stop a run at the first non-finite loss (else it surfaces 50k steps later as a MuJoCo
+    ``mjWARN_BADCTRL`` in an evaluation, with the NaN weights already saved)."""
+    for key, value in values.items():
+        if not math.isfinite(value):
+            raise TrainingDivergedError(f"{run}: {key} = {value} at step {step}; stopped{kept}. Lower the learning "
+                                        "rate or check the data")
+
+
+def die_with_parent(sig: int = signal.SIGTERM) -> None:
+    """Have the kernel send ``sig`` to this process when its parent dies (Linux ``PR_SET_PDEATHSIG``).
+
+    Stage scripts call it at start (killing ``dvc repro`` then stops the stage it ran) and worker
+    pools use it as their initializer (killing a stage stops its workers, which would otherwise go
+    on writing the files a rerun writes). Elsewhere than Linux it does nothing."""
+    if not sys.platform.startswith("linux"):
+        return
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.prctl(1, int(sig), 0, 0, 0) != 0:  # 1 = PR_SET_PDEATHSIG
+        return
+    if os.getppid() == 1:  # the parent died before prctl: we were already adopted by init
+        os.kill(os.getpid(), sig)
 
 
 def seed_everything(seed: int) -> None:

@@ -24,6 +24,7 @@ from tqdm import tqdm
 from mop_core.artifacts import RunPaths, load_checkpoint, save_checkpoint
 from mop_core.config import require
 from mop_core.nn import with_task_id
+from mop_core.runtime import TrainingDivergedError, require_finite
 
 RESUME_KIND = "training_resume"
 
@@ -64,28 +65,48 @@ def try_resume(path: Path, fingerprint: str) -> dict | None:
     return state
 
 
+def non_finite_tensor(state) -> str | None:
+    """The key of the first floating tensor holding NaN or inf in a (nested) state dict, else None."""
+    if isinstance(state, torch.Tensor):
+        return "" if state.is_floating_point() and not torch.isfinite(state).all() else None
+    items = state.items() if isinstance(state, dict) else enumerate(state) if isinstance(state, (list, tuple)) else ()
+    for key, value in items:
+        found = non_finite_tensor(value)
+        if found is not None:
+            return f"{key}.{found}".rstrip(".")
+    return None
+
+
 def train_loop(agent, update: Callable[[], dict], evaluate: Callable[[list[int]], dict[str, float]],
                schedule: TrainSchedule, seeds: dict[str, int], sampler: torch.Generator, paths: RunPaths,
                fingerprint: str, desc: str, progress: bool) -> tuple[list[dict], float, int]:
     """Run ``update`` to ``schedule.steps`` with periodic evaluation and resume checkpoints.
 
     Returns the learning curve rows, the training seconds and the step it resumed from (0 if none).
+    A NaN or infinite loss (every step) or weight (at every checkpoint) stops the run with
+    :class:`TrainingDivergedError` naming ``desc`` and the step; the last good resume file is kept.
+    The resume file holds the losses of the evaluation window in progress, so a resumed run's
+    curve equals an uninterrupted one's whatever ``checkpoint_every`` and ``eval_every`` are.
     """
     curve: list[dict] = []
     seconds_before = 0.0
     resumed_from = 0
+    losses: dict[str, list[float]] = {}
     state = try_resume(paths.resume, fingerprint)
     if state is not None:
         agent.load_state_dict(state["agent"])
         sampler.set_state(state["sampler"])
         curve, seconds_before, resumed_from = state["curve"], state["seconds"], state["step"]
+        losses = state.get("losses", {})
+    kept = f"; the resume file {paths.resume} (if any) keeps the last good state"
     eval_seeds = [seeds["eval"] + i for i in range(schedule.eval_episodes)]
     started = time.perf_counter()
-    losses: dict[str, list[float]] = {}
     bar = tqdm(total=schedule.steps, initial=resumed_from, desc=desc, disable=not progress, mininterval=2.0,
                unit="upd")
     for step in range(resumed_from + 1, schedule.steps + 1):
-        for key, value in update().items():
+        values = update()
+        require_finite(values, desc, step, kept)
+        for key, value in values.items():
             losses.setdefault(key, []).append(value)
         bar.update(1)
         if step % schedule.eval_every == 0 or step == schedule.steps:
@@ -95,10 +116,14 @@ def train_loop(agent, update: Callable[[], dict], evaluate: Callable[[list[int]]
             curve.append(row)
             losses = {}
             bar.set_postfix(ret=f"{row['return_mean']:.0f}")
+        if step % schedule.checkpoint_every == 0 or step == schedule.steps:
+            bad = non_finite_tensor(agent.state_dict())
+            if bad is not None:
+                raise TrainingDivergedError(f"{desc}: non-finite weights ({bad}) at step {step}; stopped{kept}")
         if step % schedule.checkpoint_every == 0 and step < schedule.steps:
             save_checkpoint(paths.resume, {"kind": RESUME_KIND, "fingerprint": fingerprint, "step": step,
                                            "agent": agent.state_dict(), "sampler": sampler.get_state(),
-                                           "curve": curve,
+                                           "curve": curve, "losses": losses,
                                            "seconds": seconds_before + time.perf_counter() - started})
     bar.close()
     return curve, seconds_before + time.perf_counter() - started, resumed_from

@@ -31,7 +31,7 @@ from common import (
 from mop_core.collect import LEVELS, CollectConfig, CollectPaths, collect_task
 from mop_core.config import from_mapping, require
 from mop_core.data import write_json
-from mop_core.runtime import progress_enabled, resolve_device, set_threads
+from mop_core.runtime import die_with_parent, progress_enabled, resolve_device, set_threads
 
 
 @dataclass(frozen=True)
@@ -77,7 +77,8 @@ def main() -> None:
 
     started = time.perf_counter()
     context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=min(parallel.workers, len(study.tasks)), mp_context=context) as pool:
+    with ProcessPoolExecutor(max_workers=min(parallel.workers, len(study.tasks)), mp_context=context,
+                             initializer=die_with_parent) as pool:
         futures = {task: pool.submit(_worker, task, config, study.seed, device, progress, i,
                                      parallel.threads_per_worker) for i, task in enumerate(study.tasks)}
         summaries = {task: future.result() for task, future in futures.items()}

@@ -6,7 +6,10 @@ configs and explicit paths.
 
 from __future__ import annotations
 
+import fcntl
+import os
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -14,8 +17,9 @@ from typing import Any
 import yaml
 
 from mop_core.artifacts import RunPaths
-from mop_core.config import ConfigError, InputFileError, from_mapping, require
+from mop_core.config import ConfigError, InputFileError, OutputFileError, from_mapping, require
 from mop_core.data import LEVELS
+from mop_core.runtime import TrainingDivergedError, die_with_parent
 from mop_core.tasks import check_task_list
 
 PARAMS = Path("params.yaml")
@@ -23,6 +27,7 @@ SECTIONS = ("study", "collect", "relabel", "train_teachers", "train_multitask", 
             "shared_computation")
 DATA = Path("data")
 RESULTS = Path("results")
+LOCKS = DATA / "locks"  # run locks (not a DVC output; ignored by git)
 PARAMS_CHECKED = DATA / "params_checked.txt"  # the params stage's output; every stage depends on it
 
 
@@ -109,11 +114,45 @@ def require_inputs(paths, stage: str) -> None:
         raise ConfigError(f"missing input {', '.join(missing)}; run `dvc repro {stage}` first")
 
 
-def run_stage(main) -> None:
-    """Run a stage's ``main``; a configuration error or a bad input file prints one clear line (naming the
-    key or the file) and exits with status 2."""
+class StageBusyError(RuntimeError):
+    """Another live process runs the same stage (and matrix entry)."""
+
+
+def hold_run_lock(argv: list[str]) -> None:
+    """Take this run's lock (``data/locks/<script>[--args].lock``, an flock released by the kernel when
+    the process and its workers end, even after ``kill -9``); refuse to start if a live process holds it.
+
+    Two processes training the same run would write the same resume file and outputs."""
+    name = "-".join([Path(argv[0]).stem, *(a.lstrip("-") for a in argv[1:])])
+    path = LOCKS / f"{name}.lock"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle = open(path, "a+")
     try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        handle.seek(0)
+        holder = handle.read().strip() or "unknown"
+        handle.close()
+        raise StageBusyError(f"{path}: this run is already in progress ({holder}); wait for it to finish or "
+                             "stop that process first") from None
+    handle.seek(0)
+    handle.truncate()
+    handle.write(f"pid {os.getpid()}, started {time.strftime('%Y-%m-%d %H:%M:%S')}: {' '.join(argv)}\n")
+    handle.flush()
+    _HELD_LOCKS.append(handle)  # open for the life of the process
+
+
+_HELD_LOCKS: list = []
+
+
+def run_stage(main) -> None:
+    """Run a stage's ``main`` holding its run lock and dying with its parent (``dvc repro``); a
+    configuration error, a bad input file, a full disk, a diverged run or a busy lock prints one clear
+    line (naming the key, the file or the run) and exits with status 2."""
+    try:
+        die_with_parent()
+        hold_run_lock(sys.argv)
         main()
-    except (ConfigError, InputFileError) as err:
+    except (ConfigError, InputFileError, OutputFileError, TrainingDivergedError, StageBusyError) as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)

@@ -21,9 +21,11 @@ rewards of D_{j->i} without a copy of the observations) and the dataset's conten
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import json
 import os
+import shutil
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,7 +34,7 @@ from typing import Any, Iterator, Mapping
 import h5py
 import numpy as np
 
-from mop_core.config import InputFileError, first_line
+from mop_core.config import InputFileError, OutputFileError, first_line
 from mop_core.tasks import REWARD_FEATURES
 
 FORMAT_VERSION = 1
@@ -87,7 +89,9 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary sibling of ``path``; on success rename it onto ``path`` (atomic on POSIX).
 
     On failure the temporary file is removed and an existing ``path`` is left untouched, so a
-    reader never sees a half-written file under the final name.
+    reader never sees a half-written file under the final name. A write that fails for lack of
+    space (``ENOSPC``, or torch's ``unexpected pos`` for a short write) raises OutputFileError naming
+    ``path``. Temporary names match ``.dvcignore``'s ``.*.tmp-*``: a leftover never changes a hash.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -95,6 +99,12 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     try:
         yield tmp
         os.replace(tmp, path)
+    except (OSError, RuntimeError) as err:
+        if getattr(err, "errno", None) == errno.ENOSPC or "unexpected pos" in str(err):
+            free = shutil.disk_usage(path.parent).free
+            raise OutputFileError(f"{path}: could not be written, no space left on device ({free / 2**20:.0f} MiB "
+                                  f"free in {path.parent} now); the previous file, if any, is untouched") from err
+        raise
     finally:
         if tmp.exists():
             tmp.unlink()
