@@ -8,11 +8,12 @@ full dotted key (``collect.schedule.medium_step: ...``), before any compute star
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import types
 import typing
-from typing import Any, Mapping, TypeVar
+from typing import Any, Iterator, Mapping, TypeVar
 
 T = TypeVar("T")
 
@@ -124,6 +125,19 @@ def from_mapping(cls: type[T], mapping: Mapping[str, Any], where: str) -> T:
         if message.startswith(f"{where}."):
             raise
         raise ConfigError(f"{where}.{message}") from None
+
+
+@contextlib.contextmanager
+def keys_under(section: str) -> Iterator[None]:
+    """Report a library ConfigError (keys relative to a config, ``pbrl.batch_size``) under the params
+    section the config came from (``train_teachers.pbrl.batch_size``)."""
+    try:
+        yield
+    except ConfigError as err:
+        message = str(err)
+        if message.startswith(f"{section}."):
+            raise
+        raise ConfigError(f"{section}.{message}") from None
 
 
 def to_dict(config: Any) -> dict[str, Any]:

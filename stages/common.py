@@ -131,7 +131,7 @@ def hold_run_lock(argv: list[str]) -> None:
         fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         handle.seek(0)
-        holder = handle.read().strip() or "unknown"
+        holder = (handle.read().strip().splitlines() or ["unknown"])[-1]  # one line, whatever the file holds
         handle.close()
         raise StageBusyError(f"{path}: this run is already in progress ({holder}); wait for it to finish or "
                              "stop that process first") from None

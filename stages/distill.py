@@ -16,7 +16,7 @@ from common import dataset_file, load_params, require_inputs, run_paths, run_sta
 from distill_config import distill_config, distill_grid, pairing_levels, student_name, teacher_actor
 from teacher_config import teacher_config
 
-from mop_core.config import ConfigError, require
+from mop_core.config import ConfigError, keys_under, require
 from mop_core.data import read_dataset_attrs
 from mop_core.distill.losses import LOSSES
 from mop_core.distill.run import StudentSources, distill_student
@@ -52,9 +52,10 @@ def main() -> None:
 
     set_threads(grid.threads)
     name = student_name(args.loss, args.pairing, args.seed)
-    metrics = distill_student(StudentSources(study.tasks, teachers, datasets), config, grid.schedule,
-                              study.episode_length, args.seed, study.seed, run_paths(name, "students"), device,
-                              progress_enabled(study.progress), name)
+    with keys_under("distill"):  # sizes checked against the states: distill.batch_size
+        metrics = distill_student(StudentSources(study.tasks, teachers, datasets), config, grid.schedule,
+                                  study.episode_length, args.seed, study.seed, run_paths(name, "students"), device,
+                                  progress_enabled(study.progress), name)
     for task in study.tasks:
         m = metrics[task]
         print(f"student {name} on {task}: return {m['return_mean']:.1f} +- {m['return_std']:.1f} "

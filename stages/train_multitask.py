@@ -23,7 +23,7 @@ from common import (
 )
 from teacher_config import check_level_and_seed, multitask_grid, teacher_config, training_threads
 
-from mop_core.config import ConfigError
+from mop_core.config import ConfigError, keys_under
 from mop_core.runtime import progress_enabled, resolve_device, set_threads
 from mop_core.teachers import DataSource, train_multitask
 
@@ -49,8 +49,9 @@ def main() -> None:
 
     set_threads(threads)
     name = f"{args.level}-{args.seed}"
-    metrics = train_multitask(study.tasks, sources, config, args.seed, study.seed,
-                              run_paths(name, "multitask"), device, progress_enabled(study.progress))
+    with keys_under("train_teachers"):  # its PBRL settings are train_teachers'
+        metrics = train_multitask(study.tasks, sources, config, args.seed, study.seed,
+                                  run_paths(name, "multitask"), device, progress_enabled(study.progress))
     for task in study.tasks:
         m = metrics[task]
         print(f"multitask {name} on {task}: return {m['return_mean']:.1f} +- {m['return_std']:.1f} "

@@ -25,7 +25,7 @@ from common import (
 from teacher_config import check_level_and_seed, teacher_config, training_threads
 
 from mop_core.agents.pbrl import ACTOR_TYPES
-from mop_core.config import ConfigError
+from mop_core.config import ConfigError, keys_under
 from mop_core.runtime import progress_enabled, resolve_device, set_threads
 from mop_core.teachers import DataSource, train_teacher
 
@@ -52,8 +52,9 @@ def main() -> None:
 
     set_threads(threads)
     name = teacher_name(args.task, args.level, args.actor, args.seed)
-    metrics = train_teacher(args.task, source, config, args.seed, study.seed, run_paths(name), device,
-                            progress_enabled(study.progress))
+    with keys_under("train_teachers"):  # sizes checked against the data: train_teachers.pbrl.batch_size
+        metrics = train_teacher(args.task, source, config, args.seed, study.seed, run_paths(name), device,
+                                progress_enabled(study.progress))
     print(f"{name}: return {metrics['return_mean']:.1f} +- {metrics['return_std']:.1f} "
           f"(dataset {metrics['dataset_return_mean']:.1f}, ratio {metrics['return_ratio']:.2f}) "
           f"in {metrics['train_seconds']:.0f} s, {metrics['updates_per_second']:.0f} updates/s")

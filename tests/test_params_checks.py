@@ -100,3 +100,23 @@ def test_sizes_are_bounded_by_the_data_the_study_will_have(tiny_params):
     with pytest.raises(ConfigError, match=r"^collect.td3.batch_size: expected at most the 400 transitions"):
         check_params(_set(tiny_params, "collect.td3.batch_size", 10**9))
     check_params(_set(tiny_params, "distill.batch_size", 150))  # the bound itself is allowed
+
+
+def test_library_errors_are_reported_under_their_section(tiny_collected, tmp_path):
+    """A size checked only against the data (inside mop_core, keys relative to the config) still names
+    the params key the user edits."""
+    from mop_core.agents.pbrl import PBRLConfig
+    from mop_core.config import keys_under
+    from mop_core.relabel import RelabelConfig, relabel_dataset
+    from mop_core.teachers import DataSource, TeacherConfig, train_teacher
+    from mop_core.training import RunPaths, TrainSchedule
+
+    root, _ = tiny_collected
+    dataset, relabel = root / "datasets" / "stand-medium.hdf5", tmp_path / "relabel.hdf5"
+    relabel_dataset(dataset, relabel, ["stand"], RelabelConfig(physics_check_transitions=0))
+    config = TeacherConfig(PBRLConfig(hidden_sizes=(8,), batch_size=10**6), TrainSchedule(steps=2, rollout_envs=1), 50)
+    paths = RunPaths(*(tmp_path / name for name in ("t.pt", "m.json", "c.tsv", "r.pt")))
+    with pytest.raises(ConfigError, match=rf"^train_teachers.pbrl.batch_size: expected at most the 150 transitions of "
+                                          rf"{dataset}, got 1000000"):
+        with keys_under("train_teachers"):
+            train_teacher("stand", DataSource(dataset, relabel, "stand"), config, 0, 0, paths)
