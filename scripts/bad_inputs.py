@@ -281,7 +281,8 @@ def run(cmd: list[str], cwd: Path, timeout: float = 300) -> subprocess.Completed
     return subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
 
 
-def build_workspace(source: Path, target: Path) -> None:
+def copy_project(source: Path, target: Path) -> None:
+    """The files a study needs (code, DAG, profiles), with the tiny profile as params.yaml."""
     for name in PROJECT:
         src = source / name
         if src.is_dir():
@@ -290,6 +291,10 @@ def build_workspace(source: Path, target: Path) -> None:
             (target / name).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy(src, target / name)
     shutil.copy(source / "profiles" / "tiny.yaml", target / "params.yaml")
+
+
+def build_workspace(source: Path, target: Path) -> None:
+    copy_project(source, target)
     for cmd in (["git", "init", "-q"], ["git", "add", "-A"],
                 ["git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "tiny"], ["dvc", "repro"]):
         result = run(cmd, target, timeout=3600)

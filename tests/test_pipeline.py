@@ -12,11 +12,12 @@ from pathlib import Path
 
 import pytest
 import yaml
-from conftest import ROOT, TINY_PROFILE
+from conftest import ROOT
+
+sys.path.insert(0, str(ROOT / "scripts"))
+from bad_inputs import copy_project  # noqa: E402
 
 pytestmark = pytest.mark.slow
-PROJECT_FILES = ["dvc.yaml", "stages", "mop_core", "profiles", "pyproject.toml", ".dvc/config", ".dvc/.gitignore",
-                 ".dvcignore"]
 
 
 def _run(args: list[str], cwd: Path, check: bool = True) -> subprocess.CompletedProcess:
@@ -30,14 +31,7 @@ def _run(args: list[str], cwd: Path, check: bool = True) -> subprocess.Completed
 @pytest.fixture(scope="module")
 def repo(tmp_path_factory) -> Path:
     repo = tmp_path_factory.mktemp("study")
-    for name in PROJECT_FILES:
-        src = ROOT / name
-        if src.is_dir():
-            shutil.copytree(src, repo / name, ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
-        elif src.exists():
-            (repo / name).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy(src, repo / name)
-    shutil.copy(TINY_PROFILE, repo / "params.yaml")
+    copy_project(ROOT, repo)  # code, DAG, profiles; the tiny profile as params.yaml
     _run(["git", "init", "-q"], repo)
     _run(["git", "-c", "user.name=t", "-c", "user.email=t@t", "add", "-A"], repo)
     _run(["git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "tiny study"], repo)
