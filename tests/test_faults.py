@@ -317,3 +317,18 @@ def test_killing_a_stage_kills_its_workers_and_killing_dvc_kills_the_stage(tmp_p
     os.kill(parent.pid, signal.SIGKILL)
     parent.wait()
     assert _wait_dead([child]) == [], "the stage outlived dvc"
+
+
+def test_a_stage_reports_a_damaged_dataset_in_one_line(tmp_path):
+    """Dataset errors used to end the relabel stage with a full traceback."""
+    shutil.copytree(ROOT / "stages", tmp_path / "stages", ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(ROOT / "profiles" / "tiny.yaml", tmp_path / "params.yaml")
+    for task in ("stand", "walk"):
+        path = tmp_path / "data" / "datasets" / f"{task}-medium.hdf5"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(b"\x89HDF not really\n" * 20)
+    result = subprocess.run([sys.executable, "stages/relabel.py"], cwd=tmp_path, capture_output=True, text=True)
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert result.stderr.startswith("error: data/datasets/stand-medium.hdf5: cannot be read as HDF5 (truncated or "
+                                    "corrupt?)") and result.stderr.count("\n") == 1
+    assert not (tmp_path / "data" / "relabelled").exists()
