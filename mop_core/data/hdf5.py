@@ -209,9 +209,9 @@ def read_dataset(path: str | os.PathLike, verify_checksum: bool = False, task: s
                  level: str | None = None) -> Dataset:
     """Read and validate a dataset file (keys, shapes, dtypes, finiteness, episode boundaries).
 
-    With ``verify_checksum`` the arrays' SHA-256 is recomputed and compared to the attribute (about
-    0.1 s per 100k transitions). ``task``/``level``: the file's attributes must name them (a dataset
-    copied into another task's or level's slot is refused).
+    With ``verify_checksum`` the arrays' SHA-256 is recomputed and compared to the attribute (0.28 s
+    per 100k transitions here, on top of 0.08 s to read them). ``task``/``level``: the file's
+    attributes must name them (a dataset copied into another task's or level's slot is refused).
     """
     path = Path(path)
     with _open(path) as h5:
