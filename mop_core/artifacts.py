@@ -35,6 +35,18 @@ def state_sha256(state: dict[str, torch.Tensor]) -> str:
     return digest.hexdigest()
 
 
+def file_sha256(path: str | os.PathLike) -> str:
+    """SHA-256 of a file's bytes (InputFileError if it is missing)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(f"{path}: file not found")
+    digest = hashlib.sha256()
+    with path.open("rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
 def package_versions() -> dict[str, str]:
     names = ("mop_core", "torch", "dm-control", "mujoco", "numpy", "h5py")
     return {name: importlib.metadata.version(name) for name in names}

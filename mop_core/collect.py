@@ -17,23 +17,31 @@ from __future__ import annotations
 
 import json
 import math
+import multiprocessing
 import time
-from dataclasses import dataclass
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import torch
 from tqdm import tqdm
 
-from mop_core.agents.td3 import TD3, TD3Config
+from mop_core.agents.td3 import TD3, TD3Config, actor_from_checkpoint
 from mop_core.artifacts import package_versions, save_checkpoint, state_sha256, write_curve
-from mop_core.config import require, to_dict
+from mop_core.config import from_mapping, require, to_dict
 from mop_core.data import LEVELS, ReplayBuffer, write_dataset, write_json
 from mop_core.envs import ACT_DIM, OBS_DIM, PHYSICS_DIM, WalkerEnv
+from mop_core.layout import CollectPaths
+from mop_core.nn import numpy_policy
 from mop_core.rollout import collect_episodes, episode_returns, trajectory_returns
-from mop_core.runtime import derive_seeds, require_finite
+from mop_core.runtime import TrainingDivergedError, derive_seeds, die_with_parent, require_finite, set_threads
+from mop_core.study import StudyConfig, section
 from mop_core.tasks import REWARD_FEATURES, get_task
+from mop_core.training import RESUME_KIND, non_finite_tensor, run_fingerprint, try_resume
+
+BEHAVIOUR_KIND = "td3_behaviour"  # the checkpoint kind of a medium/expert snapshot
 
 
 @dataclass(frozen=True)
@@ -48,10 +56,11 @@ class ScheduleConfig:
     eval_episodes: int = 5  # episodes per learning-curve evaluation
     snapshot_eval_episodes: int = 10  # episodes to measure each snapshot's return (Table 4.1)
     random_episodes: int = 100  # uniformly random-action episodes: R_random of the normalised score
+    checkpoint_every: int = 10000  # gradient steps between resume files (written at the next episode end)
 
     def __post_init__(self) -> None:
         for name in ("total_steps", "medium_step", "eval_every", "eval_episodes", "snapshot_eval_episodes",
-                     "random_episodes"):
+                     "random_episodes", "checkpoint_every"):
             require(getattr(self, name) > 0, name, "a positive integer", getattr(self, name))
         require(self.warmup_steps >= 0, "warmup_steps", "a non-negative integer", self.warmup_steps)
         require(self.medium_step < self.total_steps, "medium_step",
@@ -91,14 +100,25 @@ class CollectConfig:
                 self.td3.batch_size)
 
 
-@dataclass(frozen=True)
-class CollectPaths:
-    """Where the collect step of one task writes (chosen by the stage, never by the library)."""
 
-    checkpoints: dict[str, Path]  # "medium"/"expert" -> .pt
-    datasets: dict[str, Path]  # level -> .hdf5
-    dataset_metrics: dict[str, Path]  # level -> .json
-    curve: Path  # learning curve .tsv
+@dataclass(frozen=True)
+class ParallelConfig:
+    """collect.parallel: how many task processes run at once and their torch threads."""
+
+    workers: int = 2  # task processes at a time (use the number of cores)
+    threads_per_worker: int = 1  # torch threads in each process
+
+    def __post_init__(self) -> None:
+        require(self.workers >= 1, "workers", "a positive integer", self.workers)
+        require(self.threads_per_worker >= 1, "threads_per_worker", "a positive integer", self.threads_per_worker)
+
+
+def collect_configs(params: Mapping[str, Any], study: StudyConfig) -> tuple[ParallelConfig, CollectConfig]:
+    """The params' collect section: the task processes' settings and one task's collect config."""
+    raw = dict(section(params, "collect"))
+    parallel = from_mapping(ParallelConfig, raw.pop("parallel", {}), "collect.parallel")
+    config = from_mapping(CollectConfig, raw | {"episode_length": study.episode_length}, "collect")
+    return parallel, config
 
 
 def task_seeds(seed: int, task: str) -> dict[str, int]:
@@ -121,23 +141,6 @@ def random_returns(task: str, episodes: int, seed: int, episode_length: int, rol
                            _eval_seeds(seed, episodes), episode_length, rollout_envs)
 
 
-def load_actor(checkpoint: dict) -> Callable[[np.ndarray], np.ndarray]:
-    """A numpy policy from a behaviour checkpoint (config + actor weights)."""
-    from mop_core.nn import DeterministicActor
-
-    config = checkpoint["td3_config"]
-    actor = DeterministicActor(checkpoint["obs_dim"], checkpoint["act_dim"], config["hidden_sizes"],
-                               config["layer_norm"])
-    actor.load_state_dict(checkpoint["actor"])
-    actor.eval()
-
-    @torch.no_grad()
-    def policy(obs: np.ndarray) -> np.ndarray:
-        return actor(torch.as_tensor(obs, dtype=torch.float32)).numpy().astype(np.float64)
-
-    return policy
-
-
 def _eval_seeds(base: int, count: int) -> list[int]:
     return [base + i for i in range(count)]
 
@@ -150,9 +153,39 @@ class _Snapshot:
     curve_return: float
 
 
+@dataclass
+class _Progress:
+    """What a behaviour run has produced so far besides the learner: curve, snapshots, loss window."""
+
+    curve: list[dict] = field(default_factory=list)
+    medium: _Snapshot | None = None
+    fallback: _Snapshot | None = None  # closest evaluation below the target return so far
+    last_losses: dict = field(default_factory=dict)
+
+    def record(self, row: dict, snap: _Snapshot, sched: ScheduleConfig) -> None:
+        """Add an evaluation row and choose the medium snapshot (fixed step or first target return)."""
+        self.curve.append(row)
+        self.last_losses = {}
+        if self.medium is None and snap.gradient_steps < sched.total_steps:
+            if sched.medium_target_return is None:
+                if snap.gradient_steps == sched.medium_step:
+                    self.medium = snap
+            elif row["return_mean"] >= sched.medium_target_return:
+                self.medium = snap
+            elif self.fallback is None or row["return_mean"] > self.fallback.curve_return:
+                self.fallback = snap
+
+
 def train_behaviour(task: str, config: CollectConfig, seed: int, device: torch.device, progress: bool,
-                    position: int = 0) -> tuple[_Snapshot, _Snapshot, ReplayBuffer, list[dict]]:
-    """Train TD3 on ``task``; return the medium and expert snapshots, the replay and the curve."""
+                    position: int = 0, resume: Path | None = None
+                    ) -> tuple[_Snapshot, _Snapshot, ReplayBuffer, list[dict]]:
+    """Train TD3 on ``task``; return the medium and expert snapshots, the replay and the curve.
+
+    With ``resume``, the run writes a resume file at the first episode end after every
+    ``checkpoint_every`` gradient steps (learner, optimisers, every generator, the replay, the curve,
+    the snapshots so far and the environment's random state before its next reset) and, started
+    again, continues from it: the same snapshots, datasets and curve as an uninterrupted run.
+    """
     sched, seeds = config.schedule, task_seeds(seed, task)
     env = WalkerEnv(task, seeds["train_env"], config.episode_length)
     agent = TD3(config.td3, OBS_DIM, ACT_DIM, seeds["agent"], device)
@@ -161,53 +194,70 @@ def train_behaviour(task: str, config: CollectConfig, seed: int, device: torch.d
     buffer = ReplayBuffer(sched.warmup_steps + sched.total_steps, OBS_DIM, ACT_DIM, PHYSICS_DIM, len(REWARD_FEATURES))
     eval_seeds = _eval_seeds(seeds["eval"], sched.eval_episodes)
     policy = lambda o: agent.act(o).astype(np.float64)  # noqa: E731
-
-    curve: list[dict] = []
-    medium: _Snapshot | None = None
-    fallback: _Snapshot | None = None  # closest evaluation below the target return so far
+    fingerprint = run_fingerprint({"task": task, "config": to_dict(config), "seed": seed})
+    run, start, seconds_before = _Progress(), 0, 0.0
+    state = try_resume(resume, fingerprint) if resume is not None else None
+    if state is not None:
+        agent.load_state_dict(state["agent"])
+        sampler.set_state(state["sampler"])
+        rng.bit_generator.state = state["rng"]
+        env.set_random_state(state["env_random"])
+        buffer.load_state_dict(state["buffer"])
+        run, start, seconds_before = state["progress"], state["env_step"], state["seconds"]
     obs = env.reset()
-    started, last_losses = time.perf_counter(), {}
+    started = time.perf_counter()
+    saved_at = agent.updates
     total_env_steps = sched.warmup_steps + sched.total_steps
-    bar = tqdm(total=sched.total_steps, desc=f"collect {task}", position=position, disable=not progress,
-               mininterval=2.0, unit="upd")
-    for t in range(total_env_steps):
+    bar = tqdm(total=sched.total_steps, initial=agent.updates, desc=f"collect {task}", position=position,
+               disable=not progress, mininterval=2.0, unit="upd")
+    for t in range(start, total_env_steps):
         if t < sched.warmup_steps:
             action = rng.uniform(-1.0, 1.0, ACT_DIM)
         else:
             action = agent.act(obs, config.td3.exploration_noise)
         step = env.step(action)
         buffer.add(obs, action, step.reward, step.observation, False, step.timeout, step.physics, step.features)
+        env_random = env.random_state() if step.timeout else None  # before the reset draws the next start
         obs = env.reset() if step.timeout else step.observation
         if t < sched.warmup_steps:
             continue
         losses = agent.update(buffer.sample(config.td3.batch_size, sampler))
         require_finite(losses, f"collect {task} (TD3)", agent.updates)
-        last_losses = last_losses | losses
+        run.last_losses = run.last_losses | losses
         g = agent.updates
         bar.update(1)
         if g % sched.eval_every == 0 or g == sched.total_steps or g == sched.medium_step:
             returns = episode_returns(policy, task, eval_seeds, config.episode_length)
-            elapsed = time.perf_counter() - started
             row = {"step": g, "env_step": t + 1, "return_mean": float(returns.mean()),
-                   "return_std": float(returns.std()), "critic_loss": last_losses.get("critic_loss", math.nan),
-                   "actor_loss": last_losses.get("actor_loss", math.nan), "seconds": round(elapsed, 1)}
-            curve.append(row)
-            last_losses = {}
+                   "return_std": float(returns.std()), "critic_loss": run.last_losses.get("critic_loss", math.nan),
+                   "actor_loss": run.last_losses.get("actor_loss", math.nan),
+                   "seconds": round(seconds_before + time.perf_counter() - started, 1)}
+            run.record(row, _Snapshot(agent.actor_state(), g, t + 1, row["return_mean"]), sched)
             bar.set_postfix(ret=f"{row['return_mean']:.0f}")
-            snap = _Snapshot(agent.actor_state(), g, t + 1, row["return_mean"])
-            if medium is None and g < sched.total_steps:
-                if sched.medium_target_return is None:
-                    if g == sched.medium_step:
-                        medium = snap
-                elif row["return_mean"] >= sched.medium_target_return:
-                    medium = snap
-                elif fallback is None or row["return_mean"] > fallback.curve_return:
-                    fallback = snap
+        if (resume is not None and step.timeout and g - saved_at >= sched.checkpoint_every
+                and t + 1 < total_env_steps):
+            _save_resume(resume, fingerprint, t + 1, agent, sampler, rng, env_random, buffer, run,
+                         seconds_before + time.perf_counter() - started, f"collect {task} (TD3)")
+            saved_at = g
     bar.close()
-    expert = _Snapshot(agent.actor_state(), agent.updates, total_env_steps, curve[-1]["return_mean"])
+    expert = _Snapshot(agent.actor_state(), agent.updates, total_env_steps, run.curve[-1]["return_mean"])
+    medium = run.medium
     if medium is None:  # target return never reached: the best evaluation below it
-        medium = fallback if fallback is not None else expert
-    return medium, expert, buffer, curve
+        medium = run.fallback if run.fallback is not None else expert
+    return medium, expert, buffer, run.curve
+
+
+def _save_resume(path: Path, fingerprint: str, env_step: int, agent: TD3, sampler: torch.Generator,
+                 rng: np.random.Generator, env_random: tuple, buffer: ReplayBuffer, run: _Progress, seconds: float,
+                 desc: str) -> None:
+    agent_state = agent.state_dict()
+    bad = non_finite_tensor(agent_state)
+    if bad is not None:
+        raise TrainingDivergedError(f"{desc}: non-finite weights ({bad}) at step {agent.updates}; stopped")
+    save_checkpoint(path, {"kind": RESUME_KIND, "fingerprint": fingerprint, "step": agent.updates,
+                           "env_step": env_step, "agent": agent_state, "sampler": sampler.get_state(),
+                           "rng": rng.bit_generator.state, "env_random": env_random, "buffer": buffer.state_dict(),
+                           "progress": run, "seconds": seconds})
 
 
 def _dataset_summary(arrays: dict[str, np.ndarray], episode_length: int, behaviour_return: float | None) -> dict:
@@ -231,7 +281,7 @@ def collect_task(task: str, config: CollectConfig, seed: int, paths: CollectPath
     get_task(task)
     device = torch.device(device)
     started = time.perf_counter()
-    medium, expert, buffer, curve = train_behaviour(task, config, seed, device, progress, position)
+    medium, expert, buffer, curve = train_behaviour(task, config, seed, device, progress, position, paths.resume)
     train_seconds = time.perf_counter() - started
     seeds = task_seeds(seed, task)
     versions = json.dumps(package_versions(), sort_keys=True)
@@ -240,14 +290,15 @@ def collect_task(task: str, config: CollectConfig, seed: int, paths: CollectPath
     summary: dict = {"task": task, "train_seconds": round(train_seconds, 1), "snapshots": {}, "datasets": {}}
     policies = {}
     for level, snap in (("medium", medium), ("expert", expert)):
-        checkpoint = {"task": task, "level": level, "td3_config": to_dict(config.td3), "obs_dim": OBS_DIM,
-                      "act_dim": ACT_DIM, "actor": snap.actor, "gradient_steps": snap.gradient_steps,
-                      "env_steps": snap.env_steps, "seed": seed}
-        policy = load_actor(checkpoint)
+        checkpoint = {"kind": BEHAVIOUR_KIND, "task": task, "level": level, "td3_config": to_dict(config.td3),
+                      "obs_dim": OBS_DIM, "act_dim": ACT_DIM, "actor": snap.actor,
+                      "gradient_steps": snap.gradient_steps, "env_steps": snap.env_steps, "seed": seed}
+        policy = numpy_policy(actor_from_checkpoint(checkpoint))
         returns = episode_returns(policy, task, snapshot_seeds, config.episode_length,
                                   config.datasets.rollout_envs)
         checkpoint |= {"sha256": state_sha256(snap.actor), "return_mean": float(returns.mean()),
-                       "return_std": float(returns.std()), "eval_episodes": len(returns)}
+                       "return_std": float(returns.std()), "eval_episodes": len(returns),
+                       "versions": package_versions()}
         save_checkpoint(paths.checkpoints[level], checkpoint)
         policies[level] = policy
         summary["snapshots"][level] = {k: checkpoint[k] for k in
@@ -281,5 +332,39 @@ def collect_task(task: str, config: CollectConfig, seed: int, paths: CollectPath
         write_json(paths.dataset_metrics[level], metrics)
         summary["datasets"][level] = metrics
     write_curve(paths.curve, curve)
+    if paths.resume is not None:
+        paths.resume.unlink(missing_ok=True)  # every output is written: the run is over
     summary["total_seconds"] = round(time.perf_counter() - started, 1)
     return summary
+
+
+def _collect_worker(task: str, config: CollectConfig, seed: int, paths: CollectPaths, device: str, progress: bool,
+                    position: int, threads: int) -> dict:
+    set_threads(threads)
+    return collect_task(task, config, seed, paths, device, progress, position)
+
+
+def collect_tasks(tasks: Sequence[tuple[str, CollectPaths]], config: CollectConfig, seed: int, device: str,
+                  progress: bool, workers: int, threads: int) -> dict[str, dict]:
+    """Every task's collect step, each in a spawned process with ``threads`` torch threads, ``workers``
+    at a time (``dvc repro`` runs stages one after another, so one stage per task would leave a core
+    idle). Returns each task's summary (:func:`collect_task`)."""
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=context,
+                             initializer=die_with_parent) as pool:
+        futures = {task: pool.submit(_collect_worker, task, config, seed, paths, device, progress, i, threads)
+                   for i, (task, paths) in enumerate(tasks)}
+        return {task: future.result() for task, future in futures.items()}
+
+
+def collect_metrics(summaries: dict[str, dict], stage_seconds: float) -> dict:
+    """The collect stage's metrics: snapshot returns, R_random of the normalised score, times per task."""
+    metrics = {task: {"medium_return": s["snapshots"]["medium"]["return_mean"],
+                      "expert_return": s["snapshots"]["expert"]["return_mean"],
+                      "medium_gradient_steps": s["snapshots"]["medium"]["gradient_steps"],
+                      "expert_gradient_steps": s["snapshots"]["expert"]["gradient_steps"],
+                      "random_return": s["random"]["return_mean"], "random_return_std": s["random"]["return_std"],
+                      "random_episodes": s["random"]["episodes"],
+                      "seconds": s["total_seconds"]} for task, s in summaries.items()}
+    metrics["stage_seconds"] = round(stage_seconds, 1)
+    return metrics

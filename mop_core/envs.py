@@ -23,7 +23,6 @@ from mop_core.tasks import WalkerTask, get_task
 OBS_DIM = 24
 ACT_DIM = 6
 PHYSICS_DIM = 18
-CONTROL_TIMESTEP = 0.025
 EPISODE_LENGTH = 1000
 
 
@@ -84,6 +83,15 @@ class WalkerEnv:
     def reset(self) -> np.ndarray:
         self._t = 0
         return flatten_observation(self._env.reset().observation)
+
+    def random_state(self) -> tuple:
+        """The state of the task's random generator (what the next ``reset`` draws the start state from)."""
+        return self._env.task.random.get_state()
+
+    def set_random_state(self, state: tuple) -> None:
+        """Continue the task's random stream from ``state``: a reset after it starts the episode an
+        uninterrupted run would have started (a resumed run restarts at an episode boundary)."""
+        self._env.task.random.set_state(state)
 
     def step(self, action: np.ndarray) -> Step:
         timestep = self._env.step(np.asarray(action, dtype=np.float64))

@@ -10,8 +10,9 @@ of E. Each member is initialised like ``torch.nn.Linear``.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import Callable, Sequence
 
+import numpy as np
 import torch
 from torch import nn
 from torch.nn import functional as F
@@ -51,6 +52,9 @@ class EnsembleLayerNorm(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return F.layer_norm(x, x.shape[-1:], eps=self.eps) * self.weight + self.bias
+
+
+ACTOR_TYPES = ("deterministic", "gaussian")  # a policy network's head: an action, or a Gaussian over actions
 
 
 def mlp(in_features: int, hidden_sizes: Sequence[int], out_features: int, layer_norm: bool = False,
@@ -199,3 +203,25 @@ def soft_update(target: nn.Module, source: nn.Module, tau: float) -> None:
     """Polyak averaging: theta_target <- (1 - tau) * theta_target + tau * theta_source."""
     for t, s in zip(target.parameters(), source.parameters()):
         t.lerp_(s, tau)
+
+
+def smoothed_target_action(target_action: torch.Tensor, noise: torch.Tensor, noise_clip: float) -> torch.Tensor:
+    """Target policy smoothing (TD3; PBRL's OOD actions): a' = clip(pi_targ(s') + clip(noise, -c, c), -1, 1)."""
+    return (target_action + noise.clamp(-noise_clip, noise_clip)).clamp(-1.0, 1.0)
+
+
+NumpyPolicy = Callable[[np.ndarray], np.ndarray]
+
+
+def numpy_policy(actor: Callable[[torch.Tensor], torch.Tensor], device: torch.device | str = "cpu",
+                 task_index: int | None = None, num_tasks: int = 0) -> NumpyPolicy:
+    """The one adapter from a network to an environment policy: float64 actions ``[K, act]`` for
+    observations ``[K, obs]``, without gradients; with ``task_index`` the one-hot task id of
+    ``num_tasks`` is appended to every observation (:func:`with_task_id`)."""
+    @torch.no_grad()
+    def policy(obs: np.ndarray) -> np.ndarray:
+        x = torch.as_tensor(np.asarray(obs, dtype=np.float32), device=device)
+        if task_index is not None:
+            x = with_task_id(x, task_index, num_tasks)
+        return actor(x).cpu().numpy().astype(np.float64)
+    return policy

@@ -16,9 +16,21 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
-from mop_core.plots import band_curves
+from mop_core.catalogue import Catalogue
+from mop_core.data import LEVELS, read_json
+from mop_core.distill.losses import LOSSES
+from mop_core.layout import COLLECT_METRICS, RESULTS, dataset_summary_file, stage_dir
+from mop_core.plots import band_curves, read_curve
+from mop_core.runs import (
+    BEHAVIOUR_LEVELS,
+    behaviour_group,
+    multitask_group,
+    structure_group,
+    student_group,
+    teacher_group,
+)
 from mop_core.statistics import MIN_SEEDS_FOR_SEED_CI, confidence_interval
 
 
@@ -191,19 +203,19 @@ def behaviour_section(results: StudyResults) -> str:
     snapshot_episodes = results.settings.get("snapshot_eval_episodes", "?")
     rows = []
     for task in results.tasks:
-        for level in ("medium", "expert"):
+        for level in BEHAVIOUR_LEVELS:
             c = results.collect.get(task, {})
-            entry = eval_entry(results, task, f"behaviour_{level}")
+            entry = eval_entry(results, task, behaviour_group(level))
             rows.append([f"{task} ({level})", c.get(f"{level}_gradient_steps", "n/a"),
                          fmt(c.get(f"{level}_return")), fmt_ci(entry), fmt_normalised(entry)])
-    evals = [eval_entry(results, t, f"behaviour_{lv}") for t in results.tasks for lv in ("medium", "expert")]
+    evals = [eval_entry(results, t, behaviour_group(lv)) for t in results.tasks for lv in BEHAVIOUR_LEVELS]
     out += [table(["policy", "gradient steps", f"final return (collect, {snapshot_episodes} episodes)",
                    "eval return [95% CI]", "normalised [95% CI]"], rows), "",
             f"Eval columns: the eval stage's common episode seeds; {ci_caption(evals)}. {normalisation_text(results)}",
             ""]
     rows = []
     for task in results.tasks:
-        for level in ("expert", "medium", "medium_replay"):
+        for level in LEVELS:
             d = results.datasets.get(f"{task}-{level}")
             if d:
                 rows.append([f"{task}-{level}", d.get("transitions", "n/a"), d.get("complete_episodes", "n/a"),
@@ -230,7 +242,7 @@ def teachers_section(results: StudyResults, figure_dir: Path, link_prefix: str) 
         dataset = results.datasets.get(f"{task}-{level}", {}).get("return_mean")
         if dataset is not None:
             references[task][f"{level} dataset"] = dataset
-        entry = eval_entry(results, task, f"teacher_{level}_{actor}")
+        entry = eval_entry(results, task, teacher_group(level, actor))
         trained = [r.metrics.get("return_mean", float("nan")) for r in runs]
         ratio = entry["mean"] / dataset if entry and dataset else None
         entropy = [float(r.curve[-1]["entropy"]) for r in runs if r.curve and "entropy" in r.curve[-1]]
@@ -245,7 +257,7 @@ def teachers_section(results: StudyResults, figure_dir: Path, link_prefix: str) 
             "learned from.", "",
             table(["task", "level", "actor", "seeds", "final return (training-end eval)", "eval return [95% CI]",
                    "normalised [95% CI]", "dataset return", "eval / dataset", "final entropy (nats)"], rows), "",
-            f"Eval columns: {ci_caption([eval_entry(results, r[0], f'teacher_{r[1]}_{r[2]}') for r in rows])}. "
+            f"Eval columns: {ci_caption([eval_entry(results, r[0], teacher_group(r[1], r[2])) for r in rows])}. "
             "Final entropy: the Gaussian actor's mean entropy on its training batches over the last evaluation "
             "interval; its log sigma is bounded smoothly to (log_std_min, log_std_max), so the entropy lies "
             "strictly between the bounds' values (at log sigma = 0 on all 6 dimensions: 8.51 nats).", ""]
@@ -271,8 +283,8 @@ def multitask_section(results: StudyResults, figure_dir: Path, link_prefix: str)
             if single_band:
                 panels[task][f"single-task {level} ({seeds_text(len(single))})"] = single_band
                 drawn.append(single)
-            mt, st = eval_entry(results, task, f"multitask_{level}"), eval_entry(results, task,
-                                                                                 f"teacher_{level}_deterministic")
+            mt = eval_entry(results, task, multitask_group(level))
+            st = eval_entry(results, task, teacher_group(level, "deterministic"))
             rows.append([task, level, fmt_ci(mt), fmt_ci(st), fmt_normalised(mt), fmt_normalised(st),
                          fmt(mt["mean"] / st["mean"], 2) if mt and st else "n/a"])
     name = "multitask.png"
@@ -283,8 +295,8 @@ def multitask_section(results: StudyResults, figure_dir: Path, link_prefix: str)
             "agent is one update of each task's critic (and of the shared actor for each task in turn).", "",
             table(["task", "level", "multi-task eval [95% CI]", "single-task teacher eval [95% CI]",
                    "multi-task normalised", "teacher normalised", "multi / single"], rows), "",
-            ci_caption([eval_entry(results, r[0], f"multitask_{r[1]}") for r in rows]
-                       + [eval_entry(results, r[0], f"teacher_{r[1]}_deterministic") for r in rows]) + ".", ""]
+            ci_caption([eval_entry(results, r[0], multitask_group(r[1])) for r in rows]
+                       + [eval_entry(results, r[0], teacher_group(r[1], "deterministic")) for r in rows]) + ".", ""]
     return "\n".join(out)
 
 
@@ -308,12 +320,12 @@ def kl_rule_text(results: StudyResults) -> str:
 def student_rows(results: StudyResults, loss: str, pairing: str, runs: Sequence[Run]) -> list[list[str]]:
     """Per task: the student group's eval, seed means, normalised score, its teacher run's eval and the ratio."""
     levels = results.pairing_levels.get(pairing, [pairing] * len(results.tasks))
-    actor = "gaussian" if loss == "kl" else "deterministic"
+    actor = LOSSES[loss].teacher_actor
     rows = []
     for task, level in zip(results.tasks, levels):
-        student = eval_entry(results, task, f"student_{loss}_{pairing}")
-        teacher = teacher_run(results, task, f"teacher_{level}_{actor}")
-        ratio = (results.evaluation or {}).get(task, {}).get(f"student_{loss}_{pairing}_to_teacher")
+        student = eval_entry(results, task, student_group(loss, pairing))
+        teacher = teacher_run(results, task, teacher_group(level, actor))
+        ratio = (results.evaluation or {}).get(task, {}).get(f"{student_group(loss, pairing)}_to_teacher")
         key = f"action_mse_{task}"
         mse = [float(r.curve[-1][key]) for r in runs if r.curve and key in r.curve[-1]]
         rows.append([loss, pairing, task, level, len(runs), fmt_ci(student), seed_means_text(student),
@@ -328,9 +340,8 @@ STUDENT_HEADER = ["loss", "pairing", "task", "teacher level", "seeds", "student 
 
 
 def student_caption(results: StudyResults, rows: Sequence[Sequence[str]]) -> str:
-    students = [eval_entry(results, r[2], f"student_{r[0]}_{r[1]}") for r in rows]
-    teachers = [teacher_run(results, r[2], f"teacher_{r[3]}_{'gaussian' if r[0] == 'kl' else 'deterministic'}")
-                for r in rows]
+    students = [eval_entry(results, r[2], student_group(r[0], r[1])) for r in rows]
+    teachers = [teacher_run(results, r[2], teacher_group(r[3], LOSSES[r[0]].teacher_actor)) for r in rows]
     return (f"Students: {ci_caption(students)}. Teachers (the run of seed {results.settings.get('teacher_seed', 0)} "
             f"the students learned from): {ci_caption(teachers)}. Student / teacher divides by that run's mean.")
 
@@ -345,12 +356,12 @@ def losses_section(results: StudyResults, figure_dir: Path, link_prefix: str) ->
     student_groups = group_runs(results.students, "loss", "pairing")
     for (loss, pairing), runs in student_groups.items():
         levels = results.pairing_levels.get(pairing, [pairing] * len(results.tasks))
-        actor = "gaussian" if loss == "kl" else "deterministic"
+        actor = LOSSES[loss].teacher_actor
         for task, level in zip(results.tasks, levels):
             band = seed_band([r.curve for r in runs], f"return_mean_{task}")
             if band:
                 panels[task][f"{loss} {pairing} ({seeds_text(len(runs))})"] = band
-            teacher = teacher_run(results, task, f"teacher_{level}_{actor}")
+            teacher = teacher_run(results, task, teacher_group(level, actor))
             if teacher:
                 references[task][f"{level} {actor} teacher"] = teacher["mean"]
         rows += student_rows(results, loss, pairing, runs)
@@ -410,7 +421,7 @@ def shared_section(results: StudyResults) -> str:
         return "\n".join(out + [not_run("the shared_computation stage", "Run `dvc repro shared_computation`."), ""])
     shared = results.shared
     rows = []
-    study_order = list(dict.fromkeys(f"{r.key['loss']}_{r.key['pairing']}" for r in results.students))
+    study_order = list(dict.fromkeys(structure_group(r.key["loss"], r.key["pairing"]) for r in results.students))
     ordered = sorted(shared["groups"], key=lambda g: study_order.index(g) if g in study_order else len(study_order))
     for group in ordered:  # the study's loss order (mse, q, kl), not the JSON file's sorted keys
         summary = shared["groups"][group]
@@ -506,3 +517,79 @@ def render_report(results: StudyResults, figure_dir: Path, link_prefix: str) -> 
     if extra:
         sections.append(f"## Appendix: every evaluated policy\n\n![returns]({extra})\n")
     return "\n".join(sections)
+
+
+# ---- loading a run's results ------------------------------------------------------------------------
+def read_optional(path: Path) -> dict | None:
+    """A result file's content, or None where that part of the study was not run."""
+    return read_json(path) if path.is_file() else None
+
+
+def load_run(run, key: dict) -> Run | None:
+    """A trained run's metrics and curve (None if its metrics were not written)."""
+    metrics = read_optional(run.paths.metrics)
+    if metrics is None:
+        return None
+    return Run(key, run.seed, metrics, read_curve(run.paths.curve) if run.paths.curve.is_file() else [])
+
+
+def settings(params: Mapping[str, Any], results: StudyResults) -> dict:
+    """The header's budgets (the params' values) and the stage times the runs recorded."""
+    collect, teachers = params["collect"]["schedule"], params["train_teachers"]
+    distill, evaluation = params["distill"], params["eval"]
+    summary = (f"collect {collect['total_steps']} TD3 gradient steps per task (medium at {collect['medium_step']}); "
+               f"PBRL teachers {teachers['schedule']['steps']} steps, seeds {teachers['seeds']}; students "
+               f"{distill['schedule']['steps']} steps, seeds {distill['seeds']}; eval {evaluation['episodes']} "
+               "episodes per policy and task")
+    timing = {}
+    if results.collect:
+        timing["collect"] = results.collect.get("stage_seconds")
+    for label, runs in (("train_teachers", results.teachers), ("train_multitask", results.multitask),
+                        ("distill", results.students)):
+        if runs:
+            timing[label] = sum(r.metrics.get("train_seconds", 0.0) for r in runs)
+    if results.evaluation:
+        timing["eval"] = results.evaluation.get("eval", {}).get("seconds")
+    if results.shared:
+        timing["shared_computation"] = results.shared.get("seconds")
+    return {"summary": summary, "timing": {k: v for k, v in timing.items() if v is not None},
+            "teacher_seed": distill["teacher_seed"], "snapshot_eval_episodes": collect.get("snapshot_eval_episodes")}
+
+
+def load_results(catalogue: Catalogue, params: Mapping[str, Any]) -> StudyResults:
+    """Everything the stages wrote for the catalogue's runs (absent files: parts not run)."""
+    results = StudyResults(tasks=list(catalogue.tasks), levels=list(catalogue.levels), settings={})
+    results.collect = read_optional(COLLECT_METRICS)
+    for task in catalogue.tasks:
+        for level in LEVELS:
+            dataset = read_optional(dataset_summary_file(task, level))
+            if dataset:
+                results.datasets[f"{task}-{level}"] = dataset
+    for t in catalogue.teachers:
+        run = load_run(t, {"task": t.task, "level": t.level, "actor": t.actor})
+        results.teachers += [run] if run else []
+    for m in catalogue.multitask:
+        run = load_run(m, {"level": m.level})
+        results.multitask += [run] if run else []
+    for s in catalogue.students:
+        results.pairing_levels[s.pairing] = list(s.levels)
+        run = load_run(s, {"loss": s.loss, "pairing": s.pairing})
+        results.students += [run] if run else []
+    results.evaluation = read_optional(stage_dir("eval") / "metrics.json")
+    shared = stage_dir("shared_computation")
+    results.shared = read_optional(shared / "metrics.json")
+    figures: dict = {}
+    for name, path in (("eval_returns", stage_dir("eval") / "returns.png"),
+                       ("tau_during_training", shared / "tau_during_training.png")):
+        if path.is_file():
+            figures[name] = path.relative_to(RESULTS).as_posix()
+    sorted_figures = {}
+    for members in catalogue.student_groups().values():
+        path = shared / "figures" / f"{members[0].name}.png"
+        if path.is_file():
+            sorted_figures[f"{members[0].loss} {members[0].pairing} (seed {members[0].seed})"] = \
+                path.relative_to(RESULTS).as_posix()
+    figures["sorted_activations"] = sorted_figures
+    results.figures = figures
+    results.settings = settings(params, results)
+    return results

@@ -1,18 +1,19 @@
-"""Process-level settings: torch device, thread counts, seeding, progress bars."""
+"""Process-level settings: torch device, thread counts, seeding, progress bars, worker processes."""
 
 from __future__ import annotations
 
 import ctypes
 import math
 import os
-import random
 import signal
 import sys
 import zlib
-from typing import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from mop_core.config import ConfigError
 
@@ -71,13 +72,6 @@ def die_with_parent(sig: int = signal.SIGTERM) -> None:
         os.kill(os.getpid(), sig)
 
 
-def seed_everything(seed: int) -> None:
-    """Seed Python, NumPy's legacy global and torch's global generators (for library code that uses them)."""
-    random.seed(seed)
-    np.random.seed(seed % 2**32)
-    torch.manual_seed(seed)
-
-
 def progress_enabled(requested: bool) -> bool:
     """Progress bars show when requested, unless ``MOP_PROGRESS=0`` is set (CI, tests)."""
     return requested and os.environ.get("MOP_PROGRESS", "1") != "0"
@@ -92,3 +86,33 @@ def derive_seeds(key: Sequence[int | str], names: Sequence[str]) -> dict[str, in
     entropy = [zlib.crc32(part.encode()) if isinstance(part, str) else int(part) for part in key]
     children = np.random.SeedSequence(entropy).spawn(len(names))
     return {name: int(child.generate_state(1)[0]) for name, child in zip(names, children)}
+
+
+def _in_worker(call: tuple) -> Any:
+    fn, args = call
+    set_threads(1)
+    return fn(*args)
+
+
+def parallel_map(fn: Callable, args: Sequence[tuple], workers: int, desc: str, progress: bool = False) -> list:
+    """``[fn(*a) for a in args]`` in order, over ``workers`` single-threaded processes (in this
+    process when ``workers`` or the number of calls is 1); a tqdm bar counts finished calls.
+    ``fn`` must be a module-level function (it is pickled)."""
+    if not args:
+        return []
+    bar = tqdm(total=len(args), desc=desc, unit="job", disable=not progress)
+    results = []
+    if workers == 1 or len(args) == 1:
+        for a in args:
+            results.append(fn(*a))
+            bar.update(1)
+    else:
+        with ProcessPoolExecutor(max_workers=min(workers, len(args), os.cpu_count() or 1),
+                                 initializer=die_with_parent) as pool:
+            for result in pool.map(_in_worker, [(fn, a) for a in args]):
+                results.append(result)
+                bar.update(1)
+    bar.close()
+    return results
+
+

@@ -26,15 +26,14 @@ import copy
 import itertools
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import torch
 
-from mop_core.config import require
-from mop_core.evaluation import parallel_map
+from mop_core.config import from_mapping, require
 from mop_core.rollout import collect_episodes
-from mop_core.runtime import derive_seeds
+from mop_core.runtime import derive_seeds, parallel_map
 from mop_core.structure import (
     TAU_VARIANTS,
     average_comparison,
@@ -42,6 +41,7 @@ from mop_core.structure import (
     linear_cka,
     per_state_comparison,
 )
+from mop_core.study import positive_threads, section
 
 TIES_NOTE = ("Kendall's tau in two variants: tau-a = (C - D) / n0, the thesis's formula (6.2.2) and the "
              "reference code's, where tied neuron pairs stay in the denominator; tau-b = (C - D) / "
@@ -61,6 +61,13 @@ class SharedComputationConfig:
     def __post_init__(self) -> None:
         for name in ("episodes", "rollout_envs", "workers"):
             require(getattr(self, name) >= 1, name, "a positive integer", getattr(self, name))
+
+
+def shared_computation_config(params: Mapping[str, Any]) -> tuple[int, SharedComputationConfig]:
+    """The measurement's torch threads and the rollouts' settings."""
+    raw = dict(section(params, "shared_computation"))
+    threads = positive_threads(raw.pop("threads", 1), "shared_computation.threads")
+    return threads, from_mapping(SharedComputationConfig, raw, "shared_computation")
 
 
 def episode_seeds(study_seed: int, task: str, episodes: int) -> list[int]:

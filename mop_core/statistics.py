@@ -13,6 +13,15 @@
   ``method='percentile'``). Score matrices are ``[samples, tasks]``; here a sample is one
   (training run, evaluation episode), so the interval is "over runs x episodes, stratified by task".
 
+Per policy group (:func:`summarise_group`), the 95% interval always says its unit and n:
+
+- one trained policy: Student-t over its evaluation episodes (n = episodes);
+- a group of >= 3 training seeds: Student-t over the seeds' mean returns (n = seeds), the interval
+  the thesis's figures draw;
+- a group of 2 seeds: a t-interval over 2 units has t(0.975, 1) = 12.7 and says nothing, so the
+  group gets the per-episode interval over its pooled episodes (n = episodes; it ignores the
+  between-seed variance) and lists each seed's mean.
+
 Every function is vectorised over bootstrap replicates; results equal rliable's to float precision
 (point estimates) and within Monte Carlo error (intervals): tests/test_statistics.py.
 """
@@ -107,3 +116,76 @@ def stratified_bootstrap(statistic: Callable[..., np.ndarray], samples: Sequence
     tail = 100 * (1 - confidence) / 2
     low, high = np.percentile(values, [tail, 100 - tail])
     return {"value": point, "ci_low": float(low), "ci_high": float(high), "reps": reps}
+
+
+def summarise_group(returns_by_seed: dict[int, np.ndarray], random_return: float | None = None,
+                    expert_return: float | None = None) -> dict:
+    """Mean and 95% CI of one group (one policy family on one task) from ``{train_seed: returns [episodes]}``.
+
+    >= MIN_SEEDS_FOR_SEED_CI training seeds: over the seeds' means (``ci_unit`` training_seed);
+    fewer: over all episodes pooled (``ci_unit`` episode). ``seed_means`` lists every seed's mean;
+    with several seeds ``runs`` holds each seed's own per-episode interval. With the task's random and
+    expert returns, ``normalised`` holds the same mean and interval as normalised scores (an affine
+    map, so the interval maps exactly).
+    """
+    if not returns_by_seed:
+        raise ValueError("returns_by_seed: expected at least one training seed")
+    seeds = sorted(returns_by_seed)
+    runs = {seed: np.asarray(returns_by_seed[seed], dtype=np.float64).ravel() for seed in seeds}
+    if len(seeds) >= MIN_SEEDS_FOR_SEED_CI:
+        summary = confidence_interval([runs[s].mean() for s in seeds]) | {"ci_unit": "training_seed"}
+    else:
+        summary = confidence_interval(np.concatenate([runs[s] for s in seeds])) | {"ci_unit": "episode"}
+    summary |= {"episodes": int(sum(len(r) for r in runs.values())), "train_seeds": seeds,
+                "seed_means": {str(s): float(runs[s].mean()) for s in seeds}}
+    if len(seeds) > 1:
+        summary["runs"] = {str(s): confidence_interval(runs[s]) | {"ci_unit": "episode"} for s in seeds}
+    if random_return is not None and expert_return is not None:
+        for entry in [summary, *summary.get("runs", {}).values()]:
+            entry["normalised"] = {key: None if entry[key] is None else
+                                   float(normalised_score(entry[key], random_return, expert_return))
+                                   for key in ("mean", "ci_low", "ci_high")}
+    return summary
+
+
+def ratio_to_teacher(group: dict, teacher: dict, teacher_seed: int | None = None) -> float:
+    """``group`` mean / the teacher's mean: of the teacher run ``teacher_seed`` (the one a student was
+    distilled from), or of the teacher group's mean over its seeds (None)."""
+    if teacher_seed is None:
+        return group["mean"] / teacher["mean"]
+    if str(teacher_seed) not in teacher["seed_means"]:
+        raise ValueError(f"teacher_seed: {teacher_seed} is not among the teacher's evaluated seeds "
+                         f"{list(teacher['seed_means'])}")
+    return group["mean"] / teacher["seed_means"][str(teacher_seed)]
+
+
+AGGREGATE_UNIT = "runs x episodes, stratified by task"
+
+
+def score_matrix(samples_by_task: dict[str, np.ndarray]) -> np.ndarray:
+    """``{task: scores [n]}`` -> ``[n, tasks]`` (every task must have the same number of samples)."""
+    lengths = {task: len(v) for task, v in samples_by_task.items()}
+    if len(set(lengths.values())) != 1:
+        raise ValueError(f"samples_by_task: expected the same number of samples per task, got {lengths}")
+    return np.stack([np.asarray(v, dtype=np.float64) for v in samples_by_task.values()], axis=1)
+
+
+def iqm_summary(samples_by_task: dict[str, np.ndarray], reps: int, seed: int) -> dict:
+    """IQM of normalised scores pooled over tasks, with its stratified-bootstrap 95% interval
+    (rliable's recommended aggregate). ``samples_by_task[task]``: one score per (run, episode).
+    No lists in the record: ``dvc metrics show`` drops them."""
+    matrix = score_matrix(samples_by_task)
+    return stratified_bootstrap(iqm, [matrix], reps, seed=seed) | {
+        "tasks": ", ".join(samples_by_task), "samples_per_task": int(matrix.shape[0]), "ci_unit": AGGREGATE_UNIT}
+
+
+def improvement_summary(x_by_task: dict[str, np.ndarray], y_by_task: dict[str, np.ndarray], reps: int,
+                        seed: int) -> dict:
+    """P(X > Y) averaged over tasks (ties 1/2) with its stratified-bootstrap 95% interval, X and Y
+    resampled independently within each task."""
+    if list(x_by_task) != list(y_by_task):
+        raise ValueError(f"x_by_task, y_by_task: expected the same tasks, got {list(x_by_task)} and {list(y_by_task)}")
+    x, y = score_matrix(x_by_task), score_matrix(y_by_task)
+    return stratified_bootstrap(probability_of_improvement, [x, y], reps, seed=seed) | {
+        "tasks": ", ".join(x_by_task), "samples_x": int(x.shape[0]), "samples_y": int(y.shape[0]),
+        "ci_unit": AGGREGATE_UNIT}

@@ -12,27 +12,28 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import torch
 
 from mop_core.agents.pbrl import PBRL, PBRLConfig, make_actor
 from mop_core.agents.pbrl_multitask import MultiTaskPBRL
-from mop_core.artifacts import load_checkpoint, package_versions, save_checkpoint, state_sha256, write_curve
+from mop_core.artifacts import load_checkpoint, state_sha256
 from mop_core.config import InputFileError, from_mapping, require, to_dict
-from mop_core.data import TransitionTensors, read_dataset, read_relabel, write_json
+from mop_core.data import TransitionTensors, read_dataset, read_relabel
 from mop_core.envs import ACT_DIM, OBS_DIM
-from mop_core.nn import EnsembleCritic
+from mop_core.nn import EnsembleCritic, numpy_policy
 from mop_core.rollout import episode_returns, trajectory_returns
 from mop_core.runtime import derive_seeds
+from mop_core.schedule import TrainSchedule
+from mop_core.study import StudyConfig, teacher_grid
 from mop_core.tasks import check_task_list
 from mop_core.training import (
     RunPaths,
-    TrainSchedule,
+    finish_run,
     returns_summary,
     run_fingerprint,
-    torch_policy,
     train_loop,
 )
 
@@ -47,6 +48,15 @@ class TeacherConfig:
     pbrl: PBRLConfig
     schedule: TrainSchedule
     episode_length: int = 1000
+
+
+
+def teacher_config(params: Mapping[str, Any], study: StudyConfig, actor: str = "deterministic") -> TeacherConfig:
+    """How one teacher of the params' train_teachers section trains (and the multi-task baseline, with
+    the same settings, as the thesis does)."""
+    grid = teacher_grid(params)
+    pbrl = from_mapping(PBRLConfig, dict(grid.pbrl) | {"actor": actor}, "train_teachers.pbrl")
+    return TeacherConfig(pbrl=pbrl, schedule=grid.schedule, episode_length=study.episode_length)
 
 
 @dataclass(frozen=True)
@@ -101,7 +111,7 @@ def train_teacher(task: str, source: DataSource, config: TeacherConfig, seed: in
     agent = PBRL(config.pbrl, OBS_DIM, ACT_DIM, seeds["agent"], device)
     sampler = torch.Generator().manual_seed(seeds["sampler"])
     batch_size = config.pbrl.batch_size
-    policy = torch_policy(agent.actor, device)
+    policy = numpy_policy(agent.actor, device)
     sched = config.schedule
 
     def evaluate(eval_seeds: list[int]) -> dict[str, float]:
@@ -121,17 +131,12 @@ def train_teacher(task: str, source: DataSource, config: TeacherConfig, seed: in
                "train_seconds": round(seconds, 1), "updates_per_second": round(sched.steps / max(seconds, 1e-9), 1),
                "resumed_from_step": resumed_from}
     actor_state = {k: v.cpu() for k, v in agent.actor.state_dict().items()}
-    save_checkpoint(paths.checkpoint, {
+    return finish_run(paths, {
         "kind": TEACHER_KIND, "task": task, "level": level, "seed": seed, "study_seed": study_seed,
         "pbrl_config": to_dict(config.pbrl), "episode_length": config.episode_length,
         "obs_dim": OBS_DIM, "act_dim": ACT_DIM, "actor": actor_state,
         "critic": {k: v.cpu() for k, v in agent.critic.critic.state_dict().items()},
-        "actor_sha256": state_sha256(actor_state), "dataset": summary, "metrics": metrics,
-        "versions": package_versions()})
-    write_curve(paths.curve, curve)
-    write_json(paths.metrics, metrics)
-    paths.resume.unlink(missing_ok=True)
-    return metrics
+        "actor_sha256": state_sha256(actor_state), "dataset": summary, "metrics": metrics}, curve, metrics)
 
 
 def train_multitask(tasks: Sequence[str], sources: Sequence[DataSource], config: TeacherConfig, seed: int,
@@ -156,7 +161,7 @@ def train_multitask(tasks: Sequence[str], sources: Sequence[DataSource], config:
     agent = MultiTaskPBRL(config.pbrl, tasks, OBS_DIM, ACT_DIM, seeds["agent"], device)
     sampler = torch.Generator().manual_seed(seeds["sampler"])
     sched = config.schedule
-    policies = [torch_policy(agent.actor, device, i, len(tasks)) for i in range(len(tasks))]
+    policies = [numpy_policy(agent.actor, device, i, len(tasks)) for i in range(len(tasks))]
 
     def update() -> dict:
         metrics = {}
@@ -187,17 +192,13 @@ def train_multitask(tasks: Sequence[str], sources: Sequence[DataSource], config:
         metrics[task] = {"return_mean": float(final.mean()), "return_std": float(final.std()),
                          "eval_episodes": len(final), "dataset_return_mean": summary["return_mean"]}
     actor_state = {k: v.cpu() for k, v in agent.actor.state_dict().items()}
-    save_checkpoint(paths.checkpoint, {
+    return finish_run(paths, {
         "kind": MULTITASK_KIND, "tasks": list(tasks), "level": level, "seed": seed, "study_seed": study_seed,
         "pbrl_config": to_dict(config.pbrl), "episode_length": config.episode_length, "obs_dim": OBS_DIM,
         "act_dim": ACT_DIM, "actor": actor_state,
         "critics": [{k: v.cpu() for k, v in c.critic.state_dict().items()} for c in agent.critics],
-        "actor_sha256": state_sha256(actor_state), "datasets": [s for _, s in loaded], "metrics": metrics,
-        "versions": package_versions()})
-    write_curve(paths.curve, curve)
-    write_json(paths.metrics, metrics)
-    paths.resume.unlink(missing_ok=True)
-    return metrics
+        "actor_sha256": state_sha256(actor_state), "datasets": [s for _, s in loaded], "metrics": metrics},
+        curve, metrics)
 
 
 @dataclass
@@ -213,15 +214,16 @@ class Teacher:
     actor_sha256: str = ""
     metrics: dict = field(default_factory=dict)  # the training run's metrics (final return, dataset return)
 
-    @torch.no_grad()
     def act(self, observations: np.ndarray) -> np.ndarray:
-        obs = torch.as_tensor(np.asarray(observations, dtype=np.float32))
-        return self.actor(obs).numpy().astype(np.float64)
+        return numpy_policy(self.actor)(observations)
 
 
 def load_teacher(path: str | Path) -> Teacher:
     """Rebuild a teacher from a ``train_teacher`` checkpoint (no params.yaml needed)."""
-    payload = load_checkpoint(path, TEACHER_KIND)
+    return teacher_from_checkpoint(load_checkpoint(path, TEACHER_KIND))
+
+
+def teacher_from_checkpoint(payload: dict) -> Teacher:
     config = from_mapping(PBRLConfig, payload["pbrl_config"], "pbrl_config")
     actor = make_actor(config, payload["obs_dim"], payload["act_dim"])
     actor.load_state_dict(payload["actor"])
@@ -267,12 +269,15 @@ class MultiTaskPolicy:
     def policy(self, task: str) -> Callable[[np.ndarray], np.ndarray]:
         if task not in self.tasks:
             raise ValueError(f"task: expected one of the baseline's tasks {self.tasks}, got {task!r}")
-        return torch_policy(self.actor, torch.device("cpu"), self.tasks.index(task), len(self.tasks))
+        return numpy_policy(self.actor, torch.device("cpu"), self.tasks.index(task), len(self.tasks))
 
 
 def load_multitask(path: str | Path) -> MultiTaskPolicy:
     """Rebuild the baseline's actor from a ``train_multitask`` checkpoint."""
-    payload = load_checkpoint(path, MULTITASK_KIND)
+    return multitask_from_checkpoint(load_checkpoint(path, MULTITASK_KIND))
+
+
+def multitask_from_checkpoint(payload: dict) -> MultiTaskPolicy:
     config = from_mapping(PBRLConfig, payload["pbrl_config"], "pbrl_config")
     actor = make_actor(config, payload["obs_dim"] + len(payload["tasks"]), payload["act_dim"])
     actor.load_state_dict(payload["actor"])

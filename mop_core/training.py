@@ -13,7 +13,6 @@ from __future__ import annotations
 import hashlib
 import json
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -21,29 +20,12 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from mop_core.artifacts import RunPaths, load_checkpoint, save_checkpoint
-from mop_core.config import require
-from mop_core.nn import with_task_id
+from mop_core.artifacts import RunPaths, load_checkpoint, package_versions, save_checkpoint, write_curve
+from mop_core.data.hdf5 import write_json
 from mop_core.runtime import TrainingDivergedError, require_finite
+from mop_core.schedule import TrainSchedule
 
 RESUME_KIND = "training_resume"
-
-
-@dataclass(frozen=True)
-class TrainSchedule:
-    """How long a PBRL run trains and how often it evaluates and checkpoints (gradient steps)."""
-
-    steps: int  # gradient steps (the multi-task baseline: per task)
-    eval_every: int = 10000  # steps between learning-curve evaluations
-    eval_episodes: int = 5  # episodes per learning-curve evaluation (same seeds every time)
-    final_eval_episodes: int = 10  # episodes of the final evaluation (seeds not used for the curve)
-    checkpoint_every: int = 10000  # steps between resume checkpoints
-    rollout_envs: int = 10  # walkers stepped together in evaluations
-
-    def __post_init__(self) -> None:
-        for name in ("steps", "eval_every", "eval_episodes", "final_eval_episodes", "checkpoint_every",
-                     "rollout_envs"):
-            require(getattr(self, name) > 0, name, "a positive integer", getattr(self, name))
 
 
 def run_fingerprint(payload: dict) -> str:
@@ -129,15 +111,16 @@ def train_loop(agent, update: Callable[[], dict], evaluate: Callable[[list[int]]
     return curve, seconds_before + time.perf_counter() - started, resumed_from
 
 
-def torch_policy(actor: torch.nn.Module, device: torch.device, task_index: int | None = None,
-                  num_tasks: int = 0) -> Callable[[np.ndarray], np.ndarray]:
-    @torch.no_grad()
-    def policy(obs: np.ndarray) -> np.ndarray:
-        x = torch.as_tensor(np.asarray(obs, dtype=np.float32), device=device)
-        if task_index is not None:
-            x = with_task_id(x, task_index, num_tasks)
-        return actor(x).cpu().numpy().astype(np.float64)
-    return policy
+def finish_run(paths: RunPaths, checkpoint: dict, curve: list[dict], metrics: dict) -> dict:
+    """The end of every offline training run (teachers, the multi-task baseline, students): the final
+    checkpoint (its ``kind`` and fields, plus the package ``versions``), the learning curve, the
+    metrics record, and the resume file dropped last (a crash before this point resumes, after it
+    the run is complete). Returns ``metrics``."""
+    save_checkpoint(paths.checkpoint, checkpoint | {"versions": package_versions()})
+    write_curve(paths.curve, curve)
+    write_json(paths.metrics, metrics)
+    paths.resume.unlink(missing_ok=True)
+    return metrics
 
 
 def returns_summary(returns: np.ndarray) -> dict[str, float]:

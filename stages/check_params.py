@@ -1,4 +1,4 @@
-"""params stage: check the whole params file before any other stage runs (stages/study_params.py).
+"""params stage: check the whole params file before any other stage runs (mop_core/study_params.py).
 
     python stages/check_params.py
 
@@ -10,16 +10,16 @@ outputs (including ``cache: false`` metrics that only git could restore).
 
 from __future__ import annotations
 
-from common import PARAMS_CHECKED, run_stage
-from study_params import load_study_params
+from common import PARAMS, PARAMS_CHECKED, load_params, run_stage
 
 from mop_core.data import atomic_path
+from mop_core.study_params import check_params
 
 
 def main() -> None:
-    load_study_params()
+    check_params(load_params(), str(PARAMS))
     with atomic_path(PARAMS_CHECKED) as tmp:
-        tmp.write_text("params.yaml passed stages/study_params.py's checks\n")
+        tmp.write_text("params.yaml passed mop_core/study_params.py's checks\n")
     print(f"params: every section checked; wrote {PARAMS_CHECKED}")
 
 

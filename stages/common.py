@@ -1,7 +1,8 @@
-"""What every stage script shares: reading params.yaml, the study settings, the output layout.
+"""What every stage script shares: reading params.yaml, checking inputs, the run lock, exit codes.
 
-Stage scripts are the only code that reads params.yaml and decides paths; mop_core receives typed
-configs and explicit paths.
+Stage scripts are the only code that reads params.yaml; mop_core receives the parsed mapping
+(mop_core.study types the grid, mop_core.catalogue lists the study's runs, mop_core.layout places
+files, each learner's module types its own section).
 """
 
 from __future__ import annotations
@@ -10,46 +11,19 @@ import fcntl
 import os
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import yaml
 
-from mop_core.artifacts import RunPaths
-from mop_core.config import ConfigError, InputFileError, OutputFileError, from_mapping, require
-from mop_core.data import LEVELS
+from mop_core.config import ConfigError, InputFileError, OutputFileError
+from mop_core.layout import DATA
 from mop_core.runtime import TrainingDivergedError, die_with_parent
-from mop_core.tasks import check_task_list
+from mop_core.study import StudyConfig, check_sections
 
 PARAMS = Path("params.yaml")
-SECTIONS = ("study", "collect", "relabel", "train_teachers", "train_multitask", "distill", "eval",
-            "shared_computation")
-DATA = Path("data")
-RESULTS = Path("results")
 LOCKS = DATA / "locks"  # run locks (not a DVC output; ignored by git)
 PARAMS_CHECKED = DATA / "params_checked.txt"  # the params stage's output; every stage depends on it
-
-
-@dataclass(frozen=True)
-class StudyConfig:
-    """The study grid and process settings shared by all stages."""
-
-    tasks: tuple[str, ...]  # walker tasks of the study (any subset of the registry, any order)
-    levels: tuple[str, ...] = LEVELS  # dataset levels later stages study (collect always writes all)
-    seed: int = 0  # study seed; every task/stage derives its own seeds from it
-    episode_length: int = 1000  # control steps per walker episode (1000 = dm_control's 25 s)
-    device: str = "auto"  # "auto" (CUDA if present), "cpu", "cuda[:N]"
-    progress: bool = True  # tqdm progress bars (MOP_PROGRESS=0 switches them off)
-
-    def __post_init__(self) -> None:
-        check_task_list(self.tasks, "tasks")
-        for i, level in enumerate(self.levels):
-            require(level in LEVELS, f"levels[{i}]", f"one of {', '.join(LEVELS)}", level)
-        require(len(self.levels) > 0 and len(set(self.levels)) == len(self.levels), "levels",
-                "a non-empty list without repeats", list(self.levels))
-        require(self.seed >= 0, "seed", "a non-negative integer", self.seed)
-        require(self.episode_length > 0, "episode_length", "a positive integer", self.episode_length)
 
 
 def load_params(path: Path = PARAMS) -> dict[str, Any]:
@@ -62,49 +36,8 @@ def load_params(path: Path = PARAMS) -> dict[str, Any]:
         raise ConfigError(f"{path}: not valid YAML: {' '.join(str(err).split())}") from None
     if not isinstance(params, dict):
         raise ConfigError(f"{path}: expected a mapping of sections, got {type(params).__name__}")
-    check_sections(params, path)
+    check_sections(params, str(path))
     return params
-
-
-def check_sections(params: dict[str, Any], path: Path = PARAMS) -> None:
-    """Refuse a section no stage reads (a misspelled ``distil:`` would otherwise be ignored)."""
-    unknown = sorted(set(params) - set(SECTIONS), key=str)
-    if unknown:
-        raise ConfigError(f"{unknown[0]}: unknown section in {path}; known: {', '.join(SECTIONS)}")
-
-
-def section(params: dict[str, Any], name: str) -> Any:
-    if name not in params:
-        raise ConfigError(f"{name}: missing section in {PARAMS}")
-    return params[name]
-
-
-def study_config(params: dict[str, Any]) -> StudyConfig:
-    return from_mapping(StudyConfig, section(params, "study"), "study")
-
-
-# ---- output layout -------------------------------------------------------------------------------
-def behaviour_checkpoint(task: str, level: str) -> Path:
-    return DATA / "behaviour" / task / f"{level}.pt"
-
-
-def dataset_file(task: str, level: str) -> Path:
-    return DATA / "datasets" / f"{task}-{level}.hdf5"
-
-
-def relabel_file(task: str, level: str) -> Path:
-    return DATA / "relabelled" / f"{task}-{level}.hdf5"
-
-
-def teacher_name(task: str, level: str, actor: str, seed: int) -> str:
-    return f"{task}-{level}-{actor}-{seed}"
-
-
-def run_paths(name: str, family: str = "teachers") -> RunPaths:
-    """Final checkpoint (DVC output), metrics and curve (results/), resume file (not an output:
-    ``dvc repro`` deletes outputs before a stage runs, and the resume file must survive that)."""
-    return RunPaths(checkpoint=DATA / family / f"{name}.pt", metrics=RESULTS / family / "metrics" / f"{name}.json",
-                    curve=RESULTS / family / "curves" / f"{name}.tsv", resume=DATA / "resume" / f"{family}-{name}.pt")
 
 
 def require_inputs(paths, stage: str) -> None:
@@ -156,3 +89,11 @@ def run_stage(main) -> None:
     except (ConfigError, InputFileError, OutputFileError, TrainingDivergedError, StageBusyError) as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
+
+
+def check_level_and_seed(study: StudyConfig, level: str, seed: int) -> None:
+    """The matrix arguments every PBRL stage takes, checked against the study before any compute."""
+    if level not in study.levels:
+        raise ConfigError(f"--level: expected one of study.levels {list(study.levels)}, got {level!r}")
+    if seed < 0:
+        raise ConfigError(f"--seed: expected a non-negative integer, got {seed!r}")

@@ -2,9 +2,10 @@
 
     python stages/distill.py --loss mse --pairing medium --seed 0
 
-Reads the teachers data/teachers/<task>-<level>-<actor>-<teacher_seed>.pt of every study task (the
-levels of the pairing; Gaussian teachers for the KL loss) and, for offline states, the datasets
-they were trained on. Writes data/students/<loss>-<pairing>-<seed>.pt, the metrics
+Reads the teachers the catalogue names for the student (per study task: the pairing's level, the
+loss's actor type, seed ``distill.teacher_seed``) and, for offline states, the datasets they were
+trained on, after checking them against data/student_inputs/<name>.json (the student_inputs stage's
+record, this entry's only data dependency in dvc.yaml). Writes data/students/<loss>-<pairing>-<seed>.pt, the metrics
 results/students/metrics/<name>.json and the learning curve results/students/curves/<name>.tsv.
 """
 
@@ -12,55 +13,48 @@ from __future__ import annotations
 
 import argparse
 
-from common import dataset_file, load_params, require_inputs, run_paths, run_stage, study_config, teacher_name
-from distill_config import distill_config, distill_grid, pairing_levels, student_name, teacher_actor
-from teacher_config import teacher_config
+from common import load_params, require_inputs, run_stage
 
+from mop_core.catalogue import LOSS_ACTORS, make_student
 from mop_core.config import ConfigError, keys_under, require
-from mop_core.data import read_dataset_attrs
+from mop_core.distill.distiller import distill_config
 from mop_core.distill.losses import LOSSES
-from mop_core.distill.run import StudentSources, distill_student
+from mop_core.distill.run import StudentSources, check_student_files, distill_student, print_summary
+from mop_core.layout import student_inputs_file
 from mop_core.runtime import progress_enabled, resolve_device, set_threads
-from mop_core.teachers import check_teacher_checkpoint
+from mop_core.study import distill_grid, pairing_levels, study_config
+from mop_core.teachers import teacher_config
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--loss", required=True, choices=LOSSES)
+    parser.add_argument("--loss", required=True, choices=tuple(LOSSES))
     parser.add_argument("--pairing", required=True)
     parser.add_argument("--seed", type=int, required=True)
     args = parser.parse_args()
 
     params = load_params()
     study = study_config(params)
-    grid = distill_grid(params, study)
-    config = distill_config(params, args.loss)
-    levels = pairing_levels(args.pairing, study)
+    grid, config = distill_grid(params, study, LOSS_ACTORS), distill_config(params, args.loss)
     require(args.seed >= 0, "--seed", "a non-negative integer", args.seed)
     if len(study.tasks) < 2:
         raise ConfigError(f"study.tasks: a multi-task student needs at least two tasks, got {list(study.tasks)}")
+    run = make_student(args.loss, args.pairing, args.seed, study.tasks, pairing_levels(args.pairing, study),
+                       grid.teacher_seed)
     device = resolve_device(study.device, "study.device")
-    actor = teacher_actor(args.loss)
-    teachers = tuple(run_paths(teacher_name(t, lv, actor, grid.teacher_seed)).checkpoint
-                     for t, lv in zip(study.tasks, levels))
-    datasets = tuple(dataset_file(t, lv) for t, lv in zip(study.tasks, levels))
-    require_inputs(teachers, "train_teachers")
-    require_inputs(datasets, "collect")
-    for task, level, teacher, dataset in zip(study.tasks, levels, teachers, datasets):
-        check_teacher_checkpoint(teacher, task, level, grid.teacher_seed, study.seed,
-                                 teacher_config(params, study, actor), read_dataset_attrs(dataset)["content_sha256"])
+    require_inputs([t.paths.checkpoint for t in run.teachers], "train_teachers")
+    require_inputs(run.datasets, "collect")
+    require_inputs([student_inputs_file(run.name)], "student_inputs")
+    check_student_files(run, study.seed, lambda actor: teacher_config(params, study, actor),
+                        student_inputs_file(run.name))
 
     set_threads(grid.threads)
-    name = student_name(args.loss, args.pairing, args.seed)
+    sources = StudentSources(run.tasks, tuple(t.paths.checkpoint for t in run.teachers), run.datasets)
     with keys_under("distill"):  # sizes checked against the states: distill.batch_size
-        metrics = distill_student(StudentSources(study.tasks, teachers, datasets), config, grid.schedule,
-                                  study.episode_length, args.seed, study.seed, run_paths(name, "students"), device,
-                                  progress_enabled(study.progress), name)
-    for task in study.tasks:
-        m = metrics[task]
-        print(f"student {name} on {task}: return {m['return_mean']:.1f} +- {m['return_std']:.1f} "
-              f"(teacher {m['teacher_return_mean']:.1f}, ratio {m['student_to_teacher']:.2f})")
-    print(f"trained in {metrics['train_seconds']:.0f} s, {metrics['steps_per_second']:.0f} steps/s")
+        metrics = distill_student(sources, config, grid.schedule, study.episode_length,
+                                  args.seed, study.seed, run.paths, device, progress_enabled(study.progress),
+                                  run.name)
+    print_summary(run.name, metrics)
 
 
 if __name__ == "__main__":

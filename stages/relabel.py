@@ -1,5 +1,7 @@
 """relabel stage: the reward of every transition of every dataset under every study task.
 
+    python stages/relabel.py
+
 Reads data/datasets/<task>-<level>.hdf5 and writes data/relabelled/<task>-<level>.hdf5 holding
 ``rewards/<reward task>`` (float64) for each task, plus results/relabel/metrics.json with the
 exactness checks (recomputed vs stored dm_control rewards; vectorised vs physics replay).
@@ -8,24 +10,21 @@ exactness checks (recomputed vs stored dm_control rewards; vectorised vs physics
 from __future__ import annotations
 
 import time
-from typing import Any
 
-from common import RESULTS, dataset_file, load_params, relabel_file, run_stage, section, study_config
+from common import load_params, run_stage
 
-from mop_core.config import ConfigError, from_mapping
+from mop_core.config import ConfigError
 from mop_core.data import write_json
+from mop_core.layout import dataset_file, relabel_file, stage_dir
 from mop_core.relabel import RelabelConfig, relabel_dataset
 from mop_core.runtime import set_threads
-
-
-def relabel_config(params: dict[str, Any]) -> RelabelConfig:
-    return from_mapping(RelabelConfig, section(params, "relabel"), "relabel")
+from mop_core.study import study_config, typed_section
 
 
 def main() -> None:
     params = load_params()
     study = study_config(params)
-    config = relabel_config(params)
+    config = typed_section(params, "relabel", RelabelConfig)
     sources = [(task, level) for task in study.tasks for level in study.levels]
     missing = [str(dataset_file(t, lv)) for t, lv in sources if not dataset_file(t, lv).is_file()]
     if missing:
@@ -37,7 +36,7 @@ def main() -> None:
         metrics[f"{task}-{level}"] = relabel_dataset(dataset_file(task, level), relabel_file(task, level),
                                                      study.tasks, config, source_task=task, level=level)
     metrics["stage_seconds"] = round(time.perf_counter() - started, 1)
-    write_json(RESULTS / "relabel" / "metrics.json", metrics)
+    write_json(stage_dir("relabel") / "metrics.json", metrics)
     print(f"relabelled {len(sources)} datasets under {len(study.tasks)} tasks in {metrics['stage_seconds']} s")
 
 

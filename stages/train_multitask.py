@@ -12,20 +12,14 @@ from __future__ import annotations
 
 import argparse
 
-from common import (
-    dataset_file,
-    load_params,
-    relabel_file,
-    require_inputs,
-    run_paths,
-    run_stage,
-    study_config,
-)
-from teacher_config import check_level_and_seed, multitask_grid, teacher_config, training_threads
+from common import check_level_and_seed, load_params, require_inputs, run_stage
 
 from mop_core.config import ConfigError, keys_under
+from mop_core.layout import dataset_file, relabel_file
+from mop_core.runs import MultitaskRun
 from mop_core.runtime import progress_enabled, resolve_device, set_threads
-from mop_core.teachers import DataSource, train_multitask
+from mop_core.study import multitask_grid, study_config, teacher_grid
+from mop_core.teachers import DataSource, teacher_config, train_multitask
 
 
 def main() -> None:
@@ -40,21 +34,19 @@ def main() -> None:
     multitask_grid(params, study)  # the section's keys, checked even when the stage is run by hand
     if len(study.tasks) < 2:
         raise ConfigError(f"study.tasks: the multi-task baseline needs at least two tasks, got {list(study.tasks)}")
-    config = teacher_config(params, study)
-    threads = training_threads(params)
+    run = MultitaskRun(args.level, args.seed, study.tasks)
+    config, threads = teacher_config(params, study), teacher_grid(params).threads
     device = resolve_device(study.device, "study.device")
-    sources = [DataSource(dataset_file(t, args.level), relabel_file(t, args.level), t, t, args.level)
-               for t in study.tasks]
+    sources = [DataSource(dataset_file(t, run.level), relabel_file(t, run.level), t, t, run.level) for t in run.tasks]
     require_inputs([p for s in sources for p in (s.dataset, s.relabel)], "relabel")
 
     set_threads(threads)
-    name = f"{args.level}-{args.seed}"
     with keys_under("train_teachers"):  # its PBRL settings are train_teachers'
-        metrics = train_multitask(study.tasks, sources, config, args.seed, study.seed,
-                                  run_paths(name, "multitask"), device, progress_enabled(study.progress))
-    for task in study.tasks:
+        metrics = train_multitask(run.tasks, sources, config, run.seed, study.seed, run.paths,
+                                  device, progress_enabled(study.progress))
+    for task in run.tasks:
         m = metrics[task]
-        print(f"multitask {name} on {task}: return {m['return_mean']:.1f} +- {m['return_std']:.1f} "
+        print(f"multitask {run.name} on {task}: return {m['return_mean']:.1f} +- {m['return_std']:.1f} "
               f"(dataset {m['dataset_return_mean']:.1f})")
     print(f"trained in {metrics['train_seconds']:.0f} s")
 

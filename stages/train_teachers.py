@@ -12,22 +12,14 @@ from __future__ import annotations
 
 import argparse
 
-from common import (
-    dataset_file,
-    load_params,
-    relabel_file,
-    require_inputs,
-    run_paths,
-    run_stage,
-    study_config,
-    teacher_name,
-)
-from teacher_config import check_level_and_seed, teacher_config, training_threads
+from common import check_level_and_seed, load_params, require_inputs, run_stage
 
 from mop_core.agents.pbrl import ACTOR_TYPES
 from mop_core.config import ConfigError, keys_under
+from mop_core.runs import TeacherRun
 from mop_core.runtime import progress_enabled, resolve_device, set_threads
-from mop_core.teachers import DataSource, train_teacher
+from mop_core.study import study_config, teacher_grid
+from mop_core.teachers import DataSource, teacher_config, train_teacher
 
 
 def main() -> None:
@@ -43,19 +35,17 @@ def main() -> None:
     if args.task not in study.tasks:
         raise ConfigError(f"--task: expected one of study.tasks {list(study.tasks)}, got {args.task!r}")
     check_level_and_seed(study, args.level, args.seed)
-    config = teacher_config(params, study, args.actor)
-    threads = training_threads(params)
+    run = TeacherRun(args.task, args.level, args.actor, args.seed)
+    config, threads = teacher_config(params, study, run.actor), teacher_grid(params).threads
     device = resolve_device(study.device, "study.device")
-    source = DataSource(dataset_file(args.task, args.level), relabel_file(args.task, args.level), args.task,
-                        args.task, args.level)
+    source = DataSource(run.dataset, run.relabel, run.task, run.task, run.level)
     require_inputs([source.dataset, source.relabel], "relabel")
 
     set_threads(threads)
-    name = teacher_name(args.task, args.level, args.actor, args.seed)
     with keys_under("train_teachers"):  # sizes checked against the data: train_teachers.pbrl.batch_size
-        metrics = train_teacher(args.task, source, config, args.seed, study.seed, run_paths(name), device,
-                                progress_enabled(study.progress))
-    print(f"{name}: return {metrics['return_mean']:.1f} +- {metrics['return_std']:.1f} "
+        metrics = train_teacher(run.task, source, config, run.seed, study.seed, run.paths,
+                                device, progress_enabled(study.progress))
+    print(f"{run.name}: return {metrics['return_mean']:.1f} +- {metrics['return_std']:.1f} "
           f"(dataset {metrics['dataset_return_mean']:.1f}, ratio {metrics['return_ratio']:.2f}) "
           f"in {metrics['train_seconds']:.0f} s, {metrics['updates_per_second']:.0f} updates/s")
 

@@ -135,3 +135,50 @@ def test_rollout_returns_match_stored_rewards(tiny_collected):
     episode_returns = ds.arrays["rewards"].reshape(-1, ds.attrs["episode_length"]).sum(1)
     metrics = summary["datasets"]["expert"]
     assert np.isclose(episode_returns.mean(), metrics["return_mean"], rtol=1e-5)
+
+
+def test_an_interrupted_behaviour_run_resumes_to_the_same_snapshots_datasets_and_curve(
+        tiny_collected, tiny_collect_config, tmp_path, monkeypatch):
+    """The TD3 run writes a resume file at episode ends (every ``checkpoint_every`` updates); killed
+    after one and started again, it ends byte for byte where an uninterrupted run ends."""
+    import dataclasses
+
+    import mop_core.collect as collect
+
+    root, _ = tiny_collected
+    cfg = tiny_collect_config
+    cfg = dataclasses.replace(cfg, schedule=dataclasses.replace(cfg.schedule, checkpoint_every=50))
+    paths = dataclasses.replace(collect_paths(tmp_path, "stand"), resume=tmp_path / "resume" / "collect-stand.pt")
+    evaluations, real = [], collect.episode_returns
+
+    def killed_at_the_third_evaluation(*args, **kwargs):
+        evaluations.append(1)
+        if len(evaluations) == 3:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(collect, "episode_returns", killed_at_the_third_evaluation)
+    with pytest.raises(KeyboardInterrupt):
+        collect_task("stand", cfg, 0, paths)
+    state = torch.load(paths.resume, weights_only=False)
+    assert state["kind"] == "training_resume" and 0 < state["step"] < cfg.schedule.total_steps
+    assert state["env_step"] % cfg.episode_length == 0  # resumed at an episode boundary
+    evaluations.clear()
+    monkeypatch.setattr(collect, "episode_returns", lambda *a, **k: evaluations.append(1) or real(*a, **k))
+    collect_task("stand", cfg, 0, paths)
+    assert not paths.resume.exists()  # a finished run leaves no resume file
+    curve = (tmp_path / "curves" / "stand.tsv").read_text().splitlines()[1:]
+    curve_steps = [int(line.split("\t")[0]) for line in curve]
+    after_resume = sum(step > state["step"] for step in curve_steps)
+    assert len(evaluations) == after_resume + 3  # it resumed: only the later curve points, 2 snapshots, R_random
+    for level in LEVELS:  # checkpoint_every changes nothing but when resume files are written
+        name = f"stand-{level}.hdf5"
+        assert (tmp_path / "datasets" / name).read_bytes() == (root / "datasets" / name).read_bytes()
+    for level in ("medium", "expert"):
+        resumed = torch.load(tmp_path / "behaviour" / "stand" / f"{level}.pt", weights_only=False)
+        first = torch.load(root / "behaviour" / "stand" / f"{level}.pt", weights_only=False)
+        assert resumed["sha256"] == first["sha256"] and resumed["return_mean"] == first["return_mean"]
+
+    def without_seconds(path):
+        return [line.rsplit("\t", 1)[0] for line in path.read_text().splitlines()]
+    assert without_seconds(tmp_path / "curves" / "stand.tsv") == without_seconds(root / "curves" / "stand.tsv")

@@ -19,8 +19,9 @@ from mop_core.distill.states import TaskStates, offline_states, online_states, t
 from mop_core.distill.student import Student, StudentConfig
 from mop_core.envs import WalkerEnv
 from mop_core.nn import DeterministicActor, EnsembleCritic, GaussianActor
+from mop_core.schedule import TrainSchedule
 from mop_core.teachers import load_teacher
-from mop_core.training import RunPaths, TrainSchedule
+from mop_core.training import RunPaths
 
 TINY = StudentConfig(hidden_sizes=(16, 16))
 

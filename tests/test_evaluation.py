@@ -7,21 +7,18 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from mop_core.config import ConfigError
-from mop_core.evaluation import (
-    EvalConfig,
-    Job,
-    PolicySpec,
-    episode_seeds,
+from mop_core.catalogue import Job
+from mop_core.config import ConfigError, InputFileError
+from mop_core.evaluation import EvalConfig, episode_seeds, run_jobs
+from mop_core.policies import load_policy
+from mop_core.rollout import episode_returns
+from mop_core.statistics import (
+    confidence_interval,
     improvement_summary,
     iqm_summary,
-    load_policy,
     ratio_to_teacher,
-    run_jobs,
     summarise_group,
 )
-from mop_core.rollout import episode_returns
-from mop_core.statistics import confidence_interval
 from mop_core.teachers import load_teacher
 
 
@@ -113,8 +110,8 @@ def test_batched_jobs_equal_single_env_rollouts_with_the_same_episode_seeds(tiny
     config = EvalConfig(episodes=4, rollout_envs=3, workers=2)
     seeds = episode_seeds(0, config)
     assert seeds == episode_seeds(0, config) and seeds != episode_seeds(1, config) and len(seeds) == 4
-    jobs = [Job("teacher", 0, PolicySpec("teacher", checkpoints[("stand", "deterministic")]), "stand"),
-            Job("cross", 0, PolicySpec("teacher", checkpoints[("stand", "deterministic")]), "walk")]
+    jobs = [Job("teacher", 0, checkpoints[("stand", "deterministic")], "stand"),
+            Job("cross", 0, checkpoints[("stand", "deterministic")], "walk")]
     results = run_jobs(jobs, seeds, 50, config)
     assert [r.shape for r in results] == [(4,), (4,)]
     policy = load_teacher(checkpoints[("stand", "deterministic")]).act
@@ -123,6 +120,9 @@ def test_batched_jobs_equal_single_env_rollouts_with_the_same_episode_seeds(tiny
         np.testing.assert_allclose(result, single, rtol=1e-6)
 
 
-def test_unknown_policy_kind_is_rejected(tmp_path):
-    with pytest.raises(ValueError, match="kind: expected one of"):
-        load_policy(PolicySpec("oracle", tmp_path / "x.pt"))
+def test_a_checkpoint_of_unknown_kind_is_rejected(tmp_path):
+    import torch
+
+    torch.save({"kind": "oracle"}, tmp_path / "x.pt")
+    with pytest.raises(InputFileError, match="x.pt: not a policy checkpoint of this study .kind 'oracle'"):
+        load_policy(tmp_path / "x.pt")

@@ -21,10 +21,11 @@ from conftest import ROOT
 from mop_core.artifacts import load_checkpoint, save_checkpoint
 from mop_core.config import InputFileError, OutputFileError
 from mop_core.data import DatasetError, read_dataset, read_dataset_attrs, read_json, write_json
-from mop_core.evaluation import PolicySpec, load_policy
 from mop_core.plots import read_curve
+from mop_core.policies import load_policy
 from mop_core.runtime import TrainingDivergedError
-from mop_core.training import RunPaths, TrainSchedule, train_loop
+from mop_core.schedule import TrainSchedule
+from mop_core.training import RunPaths, train_loop
 
 
 # ---- damaged files name themselves ----------------------------------------------------------------
@@ -40,7 +41,7 @@ def test_a_damaged_checkpoint_names_its_file(tiny_teachers, tmp_path, damage):
     with pytest.raises(InputFileError, match=f"^{path}: "):
         load_teacher(path)
     with pytest.raises(InputFileError, match=f"^{path}: "):
-        load_policy(PolicySpec("behaviour", path))
+        load_policy(path)
 
 
 def test_a_checkpoint_of_another_kind_names_its_file(tiny_teachers):
@@ -296,7 +297,7 @@ def test_killing_a_stage_kills_its_workers_and_killing_dvc_kills_the_stage(tmp_p
         import sys, common
         sys.path.insert(0, %r)
         from test_faults import sleepy_job
-        from mop_core.evaluation import parallel_map
+        from mop_core.runtime import parallel_map
         common.run_stage(lambda: parallel_map(sleepy_job, [(60,), (60,)], 2, "jobs"))
     """ % str(ROOT / "tests"), tmp_path)
     workers = [int(stage.stdout.readline()) for _ in range(2)]

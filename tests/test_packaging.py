@@ -103,8 +103,8 @@ def test_every_stage_depends_on_the_code_it_imports():
 
 def test_the_import_walk_finds_lazy_and_transitive_imports():
     files = imported_files(ROOT / "stages" / "eval.py")
-    assert "mop_core/collect.py" in files  # imported inside evaluation.load_policy
-    assert "mop_core/agents/td3.py" in files  # through mop_core.collect
+    assert "mop_core/collect.py" in files  # through mop_core.policies (the behaviour checkpoint's kind)
+    assert "mop_core/agents/td3.py" in files  # through mop_core.policies
     assert "stages/common.py" in files and "mop_core/data/hdf5.py" in files
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import re
@@ -162,6 +163,28 @@ def test_each_parameter_section_invalidates_only_its_stages(repo):
     assert not {"collect", "relabel", "eval"} & teachers and not any(s.startswith("distill") for s in teachers)
     assert _invalidated_by(repo, "eval", "episodes", 2) == {"eval", "report"}  # the report names the budget
     assert _invalidated_by(repo, "shared_computation", "episodes", 2) == {"shared_computation"}
+
+
+def test_a_changed_teacher_makes_only_its_own_students_stale(repo):
+    """Each distill entry depends on its student_inputs record, not on every teacher (issue 13)."""
+    import torch
+
+    teacher = repo / "data" / "teachers" / "stand-medium-gaussian-0.pt"  # only the KL student learns from it
+    original = teacher.read_bytes()
+    try:
+        teacher.unlink()  # DVC may have linked it to its cache: write a new file, never into the link
+        payload = torch.load(io.BytesIO(original), weights_only=False)
+        payload["actor"] = {k: v + 1e-3 for k, v in payload["actor"].items()}
+        torch.save(payload, teacher)
+        _run(["dvc", "repro", "-s", "student_inputs"], repo)
+        stale = set(json.loads(_run(["dvc", "status", "--json"], repo).stdout))
+        assert {s for s in stale if s.startswith("distill")} == {"distill@kl-medium-0"}, stale
+        assert not {"distill@mse-medium-0", "distill@q-medium-0"} & stale
+    finally:
+        teacher.unlink()
+        teacher.write_bytes(original)
+        _run(["dvc", "repro", "-s", "student_inputs"], repo)
+    assert not {s for s in json.loads(_run(["dvc", "status", "--json"], repo).stdout) if s.startswith("distill")}
 
 
 def test_exp_run_of_distill_param_reruns_only_distill_and_what_reads_students(repo):

@@ -11,6 +11,7 @@ import torch
 
 from mop_core.agents.pbrl import PBRLConfig, PessimisticCritic
 from mop_core.relabel import RelabelConfig, relabel_dataset
+from mop_core.schedule import TrainSchedule
 from mop_core.teachers import (
     DataSource,
     TeacherConfig,
@@ -19,7 +20,7 @@ from mop_core.teachers import (
     train_multitask,
     train_teacher,
 )
-from mop_core.training import RunPaths, TrainSchedule
+from mop_core.training import RunPaths
 
 PBRL_TINY = PBRLConfig(hidden_sizes=(16, 16), ensemble_size=3, batch_size=16, ood_actions=1, learning_rate=1e-3)
 SCHEDULE = TrainSchedule(steps=40, eval_every=20, eval_episodes=2, final_eval_episodes=2, checkpoint_every=10,

@@ -38,12 +38,17 @@ import numpy as np
 import torch
 from torch import nn
 
-from mop_core.agents.td3 import smoothed_target_action
 from mop_core.config import require
 from mop_core.data.buffer import Batch
-from mop_core.nn import DeterministicActor, EnsembleCritic, GaussianActor, soft_update
-
-ACTOR_TYPES = ("deterministic", "gaussian")
+from mop_core.nn import (
+    ACTOR_TYPES,
+    DeterministicActor,
+    EnsembleCritic,
+    GaussianActor,
+    numpy_policy,
+    smoothed_target_action,
+    soft_update,
+)
 
 # obs [B, o] -> actions [B, a]; for a Gaussian actor a sample, for a deterministic one its action
 PolicyFn = Callable[[torch.Tensor], torch.Tensor]
@@ -326,8 +331,7 @@ class PBRL:
     @torch.no_grad()
     def act(self, observations: np.ndarray) -> np.ndarray:
         """The deterministic action (a Gaussian actor's mean) for states ``[K, obs]``."""
-        obs = torch.as_tensor(np.asarray(observations, dtype=np.float32), device=self.device)
-        return self.actor(obs).cpu().numpy().astype(np.float64)
+        return numpy_policy(self.actor, self.device)(observations)
 
     def state_dict(self) -> dict:
         """Everything a resumed run needs to continue bit for bit (a copy, not views of live tensors)."""

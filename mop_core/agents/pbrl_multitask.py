@@ -26,7 +26,7 @@ from mop_core.agents.pbrl import (
     policy_actions,
 )
 from mop_core.data.buffer import Batch
-from mop_core.nn import soft_update, with_task_id
+from mop_core.nn import numpy_policy, soft_update, with_task_id
 
 
 class MultiTaskPBRL:
@@ -76,8 +76,7 @@ class MultiTaskPBRL:
 
     @torch.no_grad()
     def act(self, observations: np.ndarray, task: int) -> np.ndarray:
-        obs = torch.as_tensor(np.asarray(observations, dtype=np.float32), device=self.device)
-        return self.actor(with_task_id(obs, task, len(self.tasks))).cpu().numpy().astype(np.float64)
+        return numpy_policy(self.actor, self.device, task, len(self.tasks))(observations)
 
     def state_dict(self) -> dict:
         """Everything a resumed run needs to continue bit for bit (a copy, not views of live tensors)."""

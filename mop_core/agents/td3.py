@@ -22,7 +22,7 @@ import torch
 
 from mop_core.config import require
 from mop_core.data.buffer import Batch
-from mop_core.nn import DeterministicActor, EnsembleCritic, soft_update
+from mop_core.nn import DeterministicActor, EnsembleCritic, smoothed_target_action, soft_update
 
 
 @dataclass(frozen=True)
@@ -51,11 +51,6 @@ class TD3Config:
         require(self.target_noise >= 0, "target_noise", "a non-negative std", self.target_noise)
         require(self.target_noise_clip >= 0, "target_noise_clip", "a non-negative clip", self.target_noise_clip)
         require(self.policy_delay >= 1, "policy_delay", "an integer >= 1", self.policy_delay)
-
-
-def smoothed_target_action(target_action: torch.Tensor, noise: torch.Tensor, noise_clip: float) -> torch.Tensor:
-    """a' = clip(pi_targ(s') + clip(noise, -c, c), -1, 1)."""
-    return (target_action + noise.clamp(-noise_clip, noise_clip)).clamp(-1.0, 1.0)
 
 
 def td3_target(rewards: torch.Tensor, terminals: torch.Tensor, next_q: torch.Tensor, gamma: float) -> torch.Tensor:
@@ -122,6 +117,34 @@ class TD3:
             metrics["actor_loss"] = actor_loss.item()
         return metrics
 
+    def state_dict(self) -> dict:
+        """Everything a resumed run needs to continue bit for bit (a copy, not views of live tensors)."""
+        return copy.deepcopy({"actor": self.actor.state_dict(), "critic": self.critic.state_dict(),
+                              "actor_target": self.actor_target.state_dict(),
+                              "critic_target": self.critic_target.state_dict(),
+                              "actor_optimizer": self.actor_optimizer.state_dict(),
+                              "critic_optimizer": self.critic_optimizer.state_dict(),
+                              "generator": self.generator.get_state(), "updates": self.updates})
+
+    def load_state_dict(self, state: dict) -> None:
+        self.actor.load_state_dict(state["actor"])
+        self.critic.load_state_dict(state["critic"])
+        self.actor_target.load_state_dict(state["actor_target"])
+        self.critic_target.load_state_dict(state["critic_target"])
+        self.actor_optimizer.load_state_dict(state["actor_optimizer"])
+        self.critic_optimizer.load_state_dict(state["critic_optimizer"])
+        self.generator.set_state(state["generator"])
+        self.updates = state["updates"]
+
     def actor_state(self) -> dict[str, torch.Tensor]:
         """The actor's weights on the CPU (a behaviour-policy snapshot)."""
         return {k: v.detach().cpu().clone() for k, v in self.actor.state_dict().items()}
+
+
+def actor_from_checkpoint(checkpoint: dict) -> DeterministicActor:
+    """The actor of a behaviour snapshot (config + weights), in eval mode and frozen."""
+    config = checkpoint["td3_config"]
+    actor = DeterministicActor(checkpoint["obs_dim"], checkpoint["act_dim"], config["hidden_sizes"],
+                               config["layer_norm"])
+    actor.load_state_dict(checkpoint["actor"])
+    return actor.eval().requires_grad_(False)

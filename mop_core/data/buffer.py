@@ -92,6 +92,21 @@ class ReplayBuffer:
         self.features[i] = features
         self.size += 1
 
+    FIELDS = ("observations", "actions", "rewards", "next_observations", "terminals", "timeouts", "next_physics",
+              "features")
+
+    def state_dict(self) -> dict:
+        """The filled part of every field (copies), for a resume file."""
+        return {"size": self.size} | {name: getattr(self, name)[:self.size].copy() if isinstance(
+            getattr(self, name), np.ndarray) else getattr(self, name)[:self.size].clone() for name in self.FIELDS}
+
+    def load_state_dict(self, state: dict) -> None:
+        if state["size"] > self.capacity:
+            raise ValueError(f"state: {state['size']} transitions do not fit a buffer of {self.capacity}")
+        self.size = state["size"]
+        for name in self.FIELDS:
+            getattr(self, name)[:self.size] = state[name]
+
     def sample(self, batch_size: int, generator: torch.Generator) -> Batch:
         """A uniform minibatch on the CPU (``generator`` must be a CPU generator)."""
         index = torch.randint(self.size, (batch_size,), generator=generator)

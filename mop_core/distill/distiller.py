@@ -16,15 +16,16 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Any, Mapping, Sequence
 
 import torch
 
-from mop_core.config import require
-from mop_core.distill.losses import LOSSES, Q_REDUCTIONS, gaussian_kl_per_state, mse_per_state, q_per_state
+from mop_core.config import ConfigError, from_mapping, require
+from mop_core.distill.losses import LOSSES, Q_REDUCTIONS, LossInputs, mse_per_state
 from mop_core.distill.states import STATE_SOURCES, TaskStates
 from mop_core.distill.student import Student, StudentConfig
 from mop_core.nn import EnsembleCritic
+from mop_core.study import DISTILL_GRID_KEYS, section
 
 LR_SCHEDULES = ("constant", "cosine")
 PROBE_SOURCES = ("offline", "visited")
@@ -55,7 +56,7 @@ class DistillConfig:
     step_per_task: bool = False  # one Adam step per task per update (reference code) instead of one over all tasks
 
     def __post_init__(self) -> None:
-        require(self.loss in LOSSES, "loss", f"one of {LOSSES}", self.loss)
+        require(self.loss in LOSSES, "loss", f"one of {tuple(LOSSES)}", self.loss)
         require(self.q_reduction in Q_REDUCTIONS, "q_reduction", f"one of {Q_REDUCTIONS}", self.q_reduction)
         require(self.state_source in STATE_SOURCES, "state_source", f"one of {STATE_SOURCES}", self.state_source)
         require(self.learning_rate > 0, "learning_rate", "a positive number", self.learning_rate)
@@ -70,6 +71,13 @@ class DistillConfig:
                 "a positive number of states for state_source online", self.num_states)
 
 
+def distill_config(params: Mapping[str, Any], loss: str) -> DistillConfig:
+    raw = {k: v for k, v in section(params, "distill").items() if k not in DISTILL_GRID_KEYS}
+    if "loss" in raw:
+        raise ConfigError("distill.loss: set the losses in distill.losses instead")
+    return from_mapping(DistillConfig, raw | {"loss": loss}, "distill")
+
+
 class Distiller:
     """A student, its optimiser and the cached targets of every task; ``update()`` is one step."""
 
@@ -79,14 +87,16 @@ class Distiller:
         self.config, self.device, self.targets = config, torch.device(device), list(targets)
         self.total_steps = total_steps  # the length of the learning-rate schedule
         self.tasks = [t.task for t in self.targets]
-        if config.loss == "q" and (critics is None or len(critics) != len(self.targets)):
-            raise ValueError("critics: the Q loss needs one teacher critic ensemble per task")
-        if config.loss == "kl" and any(t.teacher_std is None for t in self.targets):
-            raise ValueError("targets: the KL loss needs Gaussian teachers (teacher_std is missing)")
-        self.critics = [c.to(self.device).requires_grad_(False) for c in critics] if config.loss == "q" else []
+        self.spec = LOSSES[config.loss]
+        if self.spec.needs_critics and (critics is None or len(critics) != len(self.targets)):
+            raise ValueError(f"critics: the {config.loss} loss needs one teacher critic ensemble per task")
+        if self.spec.teacher_actor == "gaussian" and any(t.teacher_std is None for t in self.targets):
+            raise ValueError(f"targets: the {config.loss} loss needs Gaussian teachers (teacher_std is missing)")
+        self.critics = ([c.to(self.device).requires_grad_(False) for c in critics] if self.spec.needs_critics
+                        else [])
         torch.manual_seed(seed)  # student initialisation
         self.student = Student(config.student, obs_dim, act_dim, len(self.targets),
-                               gaussian=config.loss == "kl").to(self.device)
+                               gaussian=self.spec.gaussian_student).to(self.device)
         self.optimizer = torch.optim.Adam(self.student.parameters(), lr=config.learning_rate)
         self.generator = torch.Generator().manual_seed(seed)
         self.updates = 0
@@ -105,18 +115,10 @@ class Distiller:
         obs = torch.cat([t.states[r] for t, r in zip(targets, rows)])
         teacher_actions = torch.cat([t.teacher_actions[r] for t, r in zip(targets, rows)])
         task_ids = torch.tensor(tasks, device=self.device).repeat_interleave(torch.tensor(sizes, device=self.device))
-        if cfg.loss == "kl":
-            mu, std = self.student.distribution(obs, task_ids)
-            teacher_std = torch.cat([t.teacher_std[r] for t, r in zip(targets, rows)])
-            per_state = gaussian_kl_per_state(mu, std, teacher_actions, teacher_std)
-            actions = mu
-        else:
-            actions = self.student(obs, task_ids)
-            if cfg.loss == "mse":
-                per_state = mse_per_state(actions, teacher_actions)
-            else:
-                per_state = torch.cat([q_per_state(self.critics[t](o, a), cfg.q_reduction) for t, o, a in
-                                       zip(tasks, obs.split(sizes), actions.split(sizes))])
+        teacher_std = (torch.cat([t.teacher_std[r] for t, r in zip(targets, rows)])
+                       if self.spec.teacher_actor == "gaussian" else None)
+        per_state, actions = self.spec.per_state(LossInputs(self.student, obs, task_ids, teacher_actions, teacher_std,
+                                                            tasks, sizes, self.critics, cfg.q_reduction))
         loss = per_state.mean()
         metrics = {"loss": loss.item()}
         with torch.no_grad():

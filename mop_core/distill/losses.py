@@ -16,13 +16,19 @@ frozen teacher i:
 
 Every task contributes the same number of states to a batch, so the mean over all rows of a batch
 equals the thesis's 1/m sum over tasks of the per-task expectations.
+
+:data:`LOSSES` is the table every other module asks (name -> :class:`Loss`): which teachers a
+loss distils (KL: Gaussian teachers, thesis 5.1.3), which head the student needs, whether it needs
+the teachers' critics, and the per-state loss itself. A new loss is one entry here.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
 import torch
 
-LOSSES = ("mse", "q", "kl")
 Q_REDUCTIONS = ("min", "mean")
 
 
@@ -53,3 +59,60 @@ def gaussian_kl_per_state(mu_s: torch.Tensor, std_s: torch.Tensor, mu_t: torch.T
     mahalanobis = ((mu_t - mu_s).pow(2) / var_t).sum(-1)
     log_det_ratio = (var_t.log() - var_s.log()).sum(-1)  # ln(|Sigma_T| / |Sigma_S|)
     return 0.5 * (trace + mahalanobis - mu_s.shape[-1] + log_det_ratio)
+
+
+@dataclass(frozen=True)
+class LossInputs:
+    """One batch as a loss sees it: states of several tasks in blocks (``sizes[k]`` rows of task
+    ``tasks[k]``), their task ids, the frozen teachers' outputs and, for the Q loss, their critics."""
+
+    student: torch.nn.Module
+    obs: torch.Tensor  # [B, obs_dim]
+    task_ids: torch.Tensor  # [B]
+    teacher_actions: torch.Tensor  # [B, k]: the teacher's action (a Gaussian teacher's mean)
+    teacher_std: torch.Tensor | None  # [B, k]: a Gaussian teacher's std (None for deterministic teachers)
+    tasks: Sequence[int]  # task index of each block
+    sizes: Sequence[int]  # rows of each block
+    critics: Sequence[torch.nn.Module]  # per task index: the teacher's critic ensemble (Q loss only)
+    q_reduction: str = "min"
+
+
+def _mse(x: LossInputs) -> tuple[torch.Tensor, torch.Tensor]:
+    actions = x.student(x.obs, x.task_ids)
+    return mse_per_state(actions, x.teacher_actions), actions
+
+
+def _q(x: LossInputs) -> tuple[torch.Tensor, torch.Tensor]:
+    actions = x.student(x.obs, x.task_ids)
+    per_state = torch.cat([q_per_state(x.critics[t](o, a), x.q_reduction) for t, o, a in
+                           zip(x.tasks, x.obs.split(list(x.sizes)), actions.split(list(x.sizes)))])
+    return per_state, actions
+
+
+def _kl(x: LossInputs) -> tuple[torch.Tensor, torch.Tensor]:
+    mu, std = x.student.distribution(x.obs, x.task_ids)
+    return gaussian_kl_per_state(mu, std, x.teacher_actions, x.teacher_std), mu
+
+
+@dataclass(frozen=True)
+class Loss:
+    """A distillation loss and what it needs."""
+
+    name: str
+    teacher_actor: str  # the PBRL actor type of the teachers it distils: "deterministic" or "gaussian"
+    gaussian_student: bool  # the student has a diagonal Gaussian head (mean, log std)
+    needs_critics: bool  # the teachers' critic ensembles are part of the loss
+    per_state: Callable[[LossInputs], tuple[torch.Tensor, torch.Tensor]]  # -> (loss [B], student action [B, k])
+
+
+LOSSES: dict[str, Loss] = {
+    "mse": Loss("mse", "deterministic", gaussian_student=False, needs_critics=False, per_state=_mse),
+    "q": Loss("q", "deterministic", gaussian_student=False, needs_critics=True, per_state=_q),
+    "kl": Loss("kl", "gaussian", gaussian_student=True, needs_critics=False, per_state=_kl),
+}
+
+
+def get_loss(name: str, key: str = "loss") -> Loss:
+    if name not in LOSSES:
+        raise ValueError(f"{key}: expected one of {tuple(LOSSES)}, got {name!r}")
+    return LOSSES[name]

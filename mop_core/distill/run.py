@@ -17,20 +17,24 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from mop_core.artifacts import load_checkpoint, package_versions, save_checkpoint, state_sha256, write_curve
+from mop_core.artifacts import load_checkpoint, state_sha256
+from mop_core.catalogue import check_student_inputs
 from mop_core.config import from_mapping, require, to_dict
-from mop_core.data import write_json
+from mop_core.data import read_dataset_attrs, read_json
 from mop_core.distill.distiller import DistillConfig, Distiller
+from mop_core.distill.losses import LOSSES
 from mop_core.distill.states import TaskStates, offline_states, online_states, task_states
 from mop_core.distill.student import Student
 from mop_core.envs import ACT_DIM, OBS_DIM
-from mop_core.nn import with_task_id
+from mop_core.nn import numpy_policy, with_task_id
 from mop_core.rollout import episode_returns, returns_and_states
+from mop_core.runs import StudentRun
 from mop_core.runtime import derive_seeds
+from mop_core.schedule import TrainSchedule
 from mop_core.structure import per_state_tau_by_layer
 from mop_core.tasks import check_task_list
-from mop_core.teachers import Teacher, load_teacher
-from mop_core.training import RunPaths, TrainSchedule, returns_summary, run_fingerprint, train_loop
+from mop_core.teachers import Teacher, TeacherConfig, check_teacher_checkpoint, load_teacher
+from mop_core.training import RunPaths, finish_run, returns_summary, run_fingerprint, train_loop
 
 STUDENT_KIND = "mop_student"
 
@@ -57,8 +61,8 @@ def load_teachers(sources: StudentSources, loss: str) -> list[Teacher]:
         teacher = load_teacher(path)
         if teacher.task != task:
             raise ValueError(f"{path}: a teacher for task {teacher.task!r}, expected one for {task!r}")
-        if (loss == "kl") != (teacher.config.actor == "gaussian"):
-            need = "gaussian" if loss == "kl" else "deterministic"
+        need = LOSSES[loss].teacher_actor
+        if teacher.config.actor != need:
             raise ValueError(f"{path}: the {loss} loss needs a {need} teacher, this one is {teacher.config.actor}")
         teachers.append(teacher)
     return teachers
@@ -117,15 +121,10 @@ def student_policy(student: Student, task_index: int, device: torch.device, samp
             raise ValueError("sample_seed: only a Gaussian (KL) student has actions to sample")
         generator = torch.Generator(device).manual_seed(sample_seed)
 
-    @torch.no_grad()
-    def policy(obs: np.ndarray) -> np.ndarray:
-        x = torch.as_tensor(np.asarray(obs, dtype=np.float32), device=device)
-        if generator is None:
-            action = student(x, task_index)
-        else:
-            action = student.actor.rsample(with_task_id(x, task_index, student.num_tasks), generator)[0]
-        return action.cpu().numpy().astype(np.float64)
-    return policy
+    if generator is None:
+        return numpy_policy(lambda x: student(x, task_index), device)
+    return numpy_policy(lambda x: student.actor.rsample(with_task_id(x, task_index, student.num_tasks), generator)[0],
+                        device)
 
 
 def distill_student(sources: StudentSources, config: DistillConfig, schedule: TrainSchedule, episode_length: int,
@@ -144,7 +143,7 @@ def distill_student(sources: StudentSources, config: DistillConfig, schedule: Tr
     seeds = derive_seeds([study_seed, "distill", *sources.tasks, *levels, seed], ("agent", "states"))
     seeds |= derive_seeds([study_seed, "distill", *sources.tasks, *levels], ("eval", "final_eval", "probe"))
     targets = build_states(sources, teachers, config, episode_length, seeds["states"], schedule.rollout_envs, device)
-    critics = [t.critic for t in teachers] if config.loss == "q" else None
+    critics = [t.critic for t in teachers] if LOSSES[config.loss].needs_critics else None
     distiller = Distiller(config, targets, OBS_DIM, ACT_DIM, seeds["agent"], critics, device, schedule.steps)
     student = distiller.student
     policies = [student_policy(student, i, device) for i in range(len(sources.tasks))]
@@ -198,18 +197,14 @@ def distill_student(sources: StudentSources, config: DistillConfig, schedule: Tr
                          "eval_episodes": len(final), "teacher_return_mean": teacher_return,
                          "student_to_teacher": float(final.mean() / teacher_return)}
     student_state = {k: v.cpu() for k, v in student.state_dict().items()}
-    save_checkpoint(paths.checkpoint, {
+    return finish_run(paths, {
         "kind": STUDENT_KIND, "tasks": list(sources.tasks), "seed": seed, "study_seed": study_seed,
         "distill_config": to_dict(config), "schedule": to_dict(schedule), "episode_length": episode_length,
         "obs_dim": OBS_DIM, "act_dim": ACT_DIM, "student": student_state,
         "student_sha256": state_sha256(student_state),
         "teachers": [{"path": str(p), "task": t.task, "level": t.level, "seed": t.seed, "actor": t.config.actor,
                       "actor_sha256": t.actor_sha256} for p, t in zip(sources.teachers, teachers)],
-        "states": [t.source for t in targets], "metrics": metrics, "versions": package_versions()})
-    write_curve(paths.curve, curve)
-    write_json(paths.metrics, metrics)
-    paths.resume.unlink(missing_ok=True)
-    return metrics
+        "states": [t.source for t in targets], "metrics": metrics}, curve, metrics)
 
 
 @dataclass
@@ -227,9 +222,31 @@ class LoadedStudent:
 
 def load_student(path: str | Path) -> LoadedStudent:
     """Rebuild a student from a ``distill_student`` checkpoint (no params.yaml needed)."""
-    payload = load_checkpoint(path, STUDENT_KIND)
+    return student_from_checkpoint(load_checkpoint(path, STUDENT_KIND))
+
+
+def student_from_checkpoint(payload: dict) -> LoadedStudent:
     config = from_mapping(DistillConfig, payload["distill_config"], "distill_config")
     student = Student(config.student, payload["obs_dim"], payload["act_dim"], len(payload["tasks"]),
-                      gaussian=config.loss == "kl")
+                      gaussian=LOSSES[config.loss].gaussian_student)
     student.load_state_dict(payload["student"])
     return LoadedStudent(student.eval().requires_grad_(False), list(payload["tasks"]), config, payload)
+
+
+def check_student_files(run: StudentRun, study_seed: int, teacher_config: Callable[[str], TeacherConfig],
+                        record: Path) -> None:
+    """Before any compute: each teacher was trained as the study now says (task, level, seed, PBRL
+    settings, dataset content; ``teacher_config(actor)`` gives the expected settings), and the files
+    are the ones the student_inputs stage recorded (``record``, the DVC dependency of this student)."""
+    for t in run.teachers:
+        check_teacher_checkpoint(t.paths.checkpoint, t.task, t.level, t.seed, study_seed, teacher_config(t.actor),
+                                 read_dataset_attrs(t.dataset)["content_sha256"])
+    check_student_inputs(run, read_json(record), record)
+
+
+def print_summary(name: str, metrics: dict) -> None:
+    for task in metrics["tasks"]:
+        m = metrics[task]
+        print(f"student {name} on {task}: return {m['return_mean']:.1f} +- {m['return_std']:.1f} "
+              f"(teacher {m['teacher_return_mean']:.1f}, ratio {m['student_to_teacher']:.2f})")
+    print(f"trained in {metrics['train_seconds']:.0f} s, {metrics['steps_per_second']:.0f} steps/s")

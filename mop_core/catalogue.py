@@ -1,0 +1,179 @@
+"""The study catalogue: every run a study's params define, what each learned from, and which
+policies the eval stage rolls out on which tasks.
+
+:func:`build_catalogue` makes it from the params' grid (:mod:`mop_core.study`); every stage and the
+report ask it rather than looping over the params' grids themselves. The run kinds, their names and
+evaluation groups are in :mod:`mop_core.runs`; a student's teachers follow from the loss table
+(:data:`mop_core.distill.losses.LOSSES`: KL distils Gaussian teachers). A new run kind is a class in
+mop_core.runs, its entries in :func:`build_catalogue` and its jobs in :meth:`Catalogue.eval_jobs`.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+from mop_core.artifacts import file_sha256
+from mop_core.config import InputFileError
+from mop_core.data.hdf5 import read_dataset_attrs
+from mop_core.distill.losses import LOSSES
+from mop_core.runs import (
+    BEHAVIOUR_LEVELS,
+    BehaviourRun,
+    MultitaskRun,
+    StudentRun,
+    TeacherRun,
+    cross_group,
+)
+from mop_core.runtime import derive_seeds
+from mop_core.study import distill_grid, multitask_grid, pairing_levels, study_config, teacher_grid
+
+LOSS_ACTORS = {name: loss.teacher_actor for name, loss in LOSSES.items()}  # what distill_grid checks
+
+
+@dataclass(frozen=True)
+class Job:
+    """Roll the policy of ``checkpoint`` (under task id ``task_id`` if it is multi-task) out on
+    ``eval_task``; ``group``/``train_seed`` say whose confidence interval it joins. ``sample_seed``:
+    a Gaussian student acts by sampling from a generator of this seed instead of by its mean."""
+
+    group: str
+    train_seed: int
+    checkpoint: Path
+    eval_task: str
+    task_id: str | None = None
+    sample_seed: int | None = None
+
+
+@dataclass(frozen=True)
+class Reference:
+    """What a group is compared with on one task: a teacher group and, for students, the seed of the
+    teacher run they learned from (None: the teacher group's mean over its seeds)."""
+
+    group: str
+    seed: int | None = None
+
+
+@dataclass(frozen=True)
+class Catalogue:
+    """Every run of one study, in the order the stages process and report them."""
+
+    tasks: tuple[str, ...]
+    levels: tuple[str, ...]
+    study_seed: int
+    behaviour: tuple[BehaviourRun, ...]
+    teachers: tuple[TeacherRun, ...]
+    multitask: tuple[MultitaskRun, ...]
+    students: tuple[StudentRun, ...]
+    teacher_seed: int  # the teacher seed students learn from and cross-task tables show
+    teacher_actors: tuple[str, ...]
+
+    def student_groups(self) -> dict[str, list[StudentRun]]:
+        """group -> its students (one per seed), in grid order."""
+        groups: dict[str, list[StudentRun]] = {}
+        for run in self.students:
+            groups.setdefault(run.group, []).append(run)
+        return groups
+
+    def cross_task_teachers(self) -> list[TeacherRun]:
+        """The deterministic teachers (seed ``teacher_seed``) evaluated on every other task (thesis 6.4.5)."""
+        if "deterministic" not in self.teacher_actors:
+            return []
+        return [TeacherRun(task, level, "deterministic", self.teacher_seed) for level in self.levels
+                for task in self.tasks]
+
+    def eval_jobs(self, sample_gaussian_students: bool = False) -> list[Job]:
+        """Every policy on the tasks it was trained for, and the cross-task teachers on the others."""
+        jobs = []
+        cross = {(t.task, t.level): t for t in self.cross_task_teachers()}
+        for task in self.tasks:
+            jobs += [Job(b.group, 0, b.checkpoint, task) for b in self.behaviour if b.task == task]
+            for level in self.levels:
+                jobs += [Job(t.group, t.seed, t.paths.checkpoint, task) for t in self.teachers
+                         if t.task == task and t.level == level]
+                if (task, level) in cross:
+                    jobs += [Job(cross_group(level, task), self.teacher_seed, cross[task, level].paths.checkpoint,
+                                 other) for other in self.tasks if other != task]
+        for run in self.multitask:
+            jobs += [Job(run.group, run.seed, run.paths.checkpoint, task, task) for task in run.tasks]
+        for run in self.students:
+            sample = sample_gaussian_students and LOSSES[run.loss].gaussian_student
+            jobs += [Job(run.group, run.seed, run.paths.checkpoint, task, task,
+                         self.sample_seed(run, task) if sample else None) for task in run.tasks]
+        return jobs
+
+    def sample_seed(self, run: StudentRun, task: str) -> int:
+        return derive_seeds([self.study_seed, "eval", "sample", run.name, task], ("sample",))["sample"]
+
+    def references(self) -> dict[str, dict[str, Reference]]:
+        """group -> task -> the teachers it is compared with (multi-task baseline and students)."""
+        out: dict[str, dict[str, Reference]] = {}
+        for run in self.multitask:
+            for task in run.tasks:
+                out.setdefault(run.group, {})[task] = Reference(run.reference_group())
+        for run in self.students:
+            for teacher in run.teachers:
+                out.setdefault(run.group, {})[teacher.task] = Reference(teacher.group, run.teacher_seed)
+        return out
+
+    def student_comparisons(self) -> list[tuple[str, str]]:
+        """(X, Y) student groups compared head to head: every pair of losses on the same pairing."""
+        by_pairing: dict[str, list[str]] = {}
+        for run in self.students:
+            groups = by_pairing.setdefault(run.pairing, [])
+            if run.group not in groups:
+                groups.append(run.group)
+        return [pair for groups in by_pairing.values() for pair in itertools.combinations(groups, 2)]
+
+
+def make_student(loss: str, pairing: str, seed: int, tasks: tuple[str, ...], levels: tuple[str, ...],
+                 teacher_seed: int) -> StudentRun:
+    """The student of (loss, pairing, seed): per task, the teacher of the pairing's level, the loss's
+    actor type and ``teacher_seed``."""
+    actor = LOSSES[loss].teacher_actor
+    return StudentRun(loss, pairing, seed, tuple(TeacherRun(task, level, actor, teacher_seed)
+                                                 for task, level in zip(tasks, levels)))
+
+
+def build_catalogue(params: Mapping[str, Any]) -> Catalogue:
+    """Every run the params define (the same order as the dvc.yaml matrices)."""
+    study = study_config(params)
+    teacher, multitask = teacher_grid(params), multitask_grid(params, study)
+    grid = distill_grid(params, study, LOSS_ACTORS)
+    teachers = tuple(TeacherRun(task, level, actor, seed) for task in study.tasks for level in study.levels
+                     for actor in teacher.actors for seed in teacher.seeds)
+    students = tuple(make_student(loss, pairing, seed, study.tasks,
+                                  pairing_levels(pairing, study, "distill.pairings"), grid.teacher_seed)
+                     for loss in grid.losses for pairing in grid.pairings for seed in grid.seeds)
+    return Catalogue(
+        tasks=study.tasks, levels=study.levels, study_seed=study.seed,
+        behaviour=tuple(BehaviourRun(task, level) for task in study.tasks for level in BEHAVIOUR_LEVELS),
+        teachers=teachers,
+        multitask=tuple(MultitaskRun(level, seed, study.tasks) for level in multitask.levels
+                        for seed in multitask.seeds),
+        students=students, teacher_seed=grid.teacher_seed, teacher_actors=teacher.actors)
+
+
+def student_inputs(run: StudentRun) -> dict:
+    """What a student reads, by content: each teacher checkpoint's SHA-256 and each dataset's content
+    hash. The ``student_inputs`` stage writes one such record per student, and each ``distill`` entry
+    depends on its own record only, so retraining one teacher reruns just the students that learn from
+    it (DVC cannot list a matrix entry's dependencies per entry: treeverse/dvc#8171)."""
+    return {"student": run.name, "tasks": list(run.tasks),
+            "teachers": [{"path": t.paths.checkpoint.as_posix(), "sha256": file_sha256(t.paths.checkpoint)}
+                         for t in run.teachers],
+            "datasets": [{"path": t.dataset.as_posix(), "content_sha256": str(read_dataset_attrs(t.dataset)[
+                "content_sha256"])} for t in run.teachers]}
+
+
+def check_student_inputs(run: StudentRun, record: dict, where: Path) -> None:
+    """Refuse to distil from files that changed since ``student_inputs`` recorded them."""
+    now = student_inputs(run)
+    if record == now:
+        return
+    changed = [new["path"] for kind in ("teachers", "datasets")
+               for old, new in zip(record.get(kind, []), now[kind]) if old != new]
+    what = changed[0] if changed else f"the inputs of student {run.name}"
+    raise InputFileError(f"{what}: changed since {where} was written; run `dvc repro` (student_inputs first)")

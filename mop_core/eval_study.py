@@ -1,0 +1,198 @@
+"""The eval stage's work: every policy of a catalogue rolled out online, summarised and compared.
+
+:func:`evaluate_study` runs the catalogue's jobs (:meth:`~mop_core.catalogue.Catalogue.eval_jobs`)
+and returns, per task and policy group, the mean return with its 95% interval (unit and n said,
+:func:`mop_core.statistics.summarise_group`), each as a normalised score
+``100 (R - R_random) / (R_expert - R_random)`` too (R_random measured by the collect stage, R_expert
+the published level of :mod:`mop_core.tasks`); each student's and baseline's ratio to the teachers it
+is compared with; aggregates (IQM of normalised scores per group, probability of improvement of
+each student group over its teachers and over the other losses: stratified bootstrap); and the
+cross-task table (each task's deterministic teacher on every task's reward, thesis 6.4.5).
+:func:`write_eval_outputs` writes the metrics, the tables for ``dvc plots`` and the figures.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mop_core.catalogue import Catalogue, Reference
+from mop_core.config import ConfigError
+from mop_core.data import atomic_path, read_json, write_json
+from mop_core.evaluation import EvalConfig, episode_seeds, run_jobs
+from mop_core.plots import learning_curves, read_curve, returns_bar_chart
+from mop_core.runs import cross_group, is_cross_group, teacher_group
+from mop_core.runtime import derive_seeds
+from mop_core.statistics import improvement_summary, iqm_summary, normalised_score, ratio_to_teacher, summarise_group
+from mop_core.tasks import get_task
+
+AGGREGATE_NOTE = ("IQM: interquartile mean of normalised scores pooled over tasks; probability of improvement "
+                  "P(X > Y): per task the share of (x, y) score pairs with x > y (ties 1/2), averaged over tasks; "
+                  "X vs teachers compares with the teacher runs X learned from. 95% percentile intervals of a "
+                  "stratified bootstrap ({reps} replicates) over runs x episodes within each task (Agarwal et al. "
+                  "2021, rliable).")
+
+
+@dataclass
+class StudyEvaluation:
+    """Every job's returns, grouped: ``returns[task][group][train seed]`` and the same as normalised
+    scores ``scores[group][task][train seed]``; ``summary[task][group]`` their intervals."""
+
+    returns: dict
+    scores: dict
+    summary: dict
+    jobs: int
+    seconds: float
+    env_steps: int
+
+
+def normalisers(tasks, collect_metrics: Path) -> dict[str, dict]:
+    """Per task: R_random (measured by the collect stage) and R_expert (published, mop_core.tasks)."""
+    collect = read_json(collect_metrics)
+    out = {}
+    for task in tasks:
+        if "random_return" not in collect.get(task, {}):
+            raise ConfigError(f"{collect_metrics}: no random_return for task {task!r}; rerun `dvc repro collect`")
+        out[task] = {"random_return": collect[task]["random_return"],
+                     "random_episodes": collect[task]["random_episodes"],
+                     "expert_return": get_task(task).expert_return, "expert_source": "UTDS task.json"}
+    return out
+
+
+def evaluate_study(catalogue: Catalogue, config: EvalConfig, episode_length: int, norms: dict,
+                   progress: bool = False) -> StudyEvaluation:
+    """Roll out every job of the catalogue (the same episode seeds for all) and summarise per group."""
+    jobs = catalogue.eval_jobs(config.gaussian_student_action == "sample")
+    started = time.perf_counter()
+    results = run_jobs(jobs, episode_seeds(catalogue.study_seed, config), episode_length, config, progress)
+    seconds = time.perf_counter() - started
+    returns: dict = defaultdict(lambda: defaultdict(dict))
+    scores: dict = defaultdict(lambda: defaultdict(dict))
+    for job, r in zip(jobs, results):
+        n = norms[job.eval_task]
+        returns[job.eval_task][job.group][job.train_seed] = r
+        scores[job.group][job.eval_task][job.train_seed] = normalised_score(r, n["random_return"], n["expert_return"])
+    summary = {task: {group: summarise_group(per_seed, norms[task]["random_return"], norms[task]["expert_return"])
+                      for group, per_seed in groups.items()} for task, groups in returns.items()}
+    return StudyEvaluation(returns, scores, summary, len(jobs), seconds,
+                           sum(r.size for r in results) * episode_length)
+
+
+def ratio_entries(summary: dict, references: dict[str, dict[str, Reference]], task: str) -> dict[str, float]:
+    """``<group>_to_teacher``: each compared group's mean over its reference teachers' on ``task``."""
+    out = {}
+    for group, by_task in references.items():
+        ref = by_task.get(task)
+        if ref is not None and group in summary[task] and ref.group in summary[task]:
+            out[f"{group}_to_teacher"] = ratio_to_teacher(summary[task][group], summary[task][ref.group], ref.seed)
+    return out
+
+
+def aggregates(scores: dict, catalogue: Catalogue, config: EvalConfig) -> dict:
+    """IQM per group and probabilities of improvement, on normalised scores."""
+    def pooled(group: str, task: str, seed: int | None = None) -> np.ndarray:
+        runs = scores[group][task]
+        return runs[seed] if seed is not None else np.concatenate([runs[s] for s in sorted(runs)])
+
+    def seed_of(name: str) -> int:
+        return derive_seeds([catalogue.study_seed, "eval", "bootstrap", name], ("bootstrap",))["bootstrap"]
+
+    reps = config.bootstrap_reps
+    iqm = {group: iqm_summary({task: pooled(group, task) for task in scores[group]}, reps, seed_of(group))
+           for group in scores if not is_cross_group(group)}
+    improvement = {}
+    for group, by_task in catalogue.references().items():
+        if group not in scores:
+            continue
+        tasks, name = list(scores[group]), f"{group}_vs_teachers"
+        improvement[name] = improvement_summary({t: pooled(group, t) for t in tasks},
+                                                {t: pooled(by_task[t].group, t, by_task[t].seed) for t in tasks},
+                                                reps, seed_of(name))
+    for x, y in catalogue.student_comparisons():
+        tasks, name = list(scores[x]), f"{x}_vs_{y}"
+        improvement[name] = improvement_summary({t: pooled(x, t) for t in tasks}, {t: pooled(y, t) for t in tasks},
+                                                reps, seed_of(name))
+    return {"iqm_normalised": iqm, "probability_of_improvement": improvement,
+            "note": AGGREGATE_NOTE.format(reps=reps)}
+
+
+def cross_task_table(summary: dict, catalogue: Catalogue) -> dict:
+    """``[level][teacher task][evaluation task]``: mean return of task i's deterministic teacher (seed
+    ``teacher_seed``) on task j's reward."""
+    table: dict = {}
+    seed = str(catalogue.teacher_seed)
+    for teacher in catalogue.cross_task_teachers():
+        group = teacher_group(teacher.level, "deterministic")
+        table.setdefault(teacher.level, {})[teacher.task] = {
+            target: summary[target][group]["seed_means"][seed] if target == teacher.task
+            else summary[target][cross_group(teacher.level, teacher.task)]["mean"] for target in catalogue.tasks}
+    return table
+
+
+def eval_metrics(evaluation: StudyEvaluation, catalogue: Catalogue, config: EvalConfig, norms: dict) -> dict:
+    """The eval stage's metrics record (``dvc metrics show``)."""
+    summary, references = evaluation.summary, catalogue.references()
+    metrics: dict = {}
+    for task in catalogue.tasks:
+        entry = {g: {k: v for k, v in s.items() if k != "train_seeds"} for g, s in summary[task].items()
+                 if not is_cross_group(g)}
+        metrics[task] = entry | ratio_entries(summary, references, task)
+    metrics["normalisation"] = norms
+    metrics["aggregate"] = aggregates(evaluation.scores, catalogue, config)
+    metrics["cross_task"] = cross_task_table(summary, catalogue)
+    metrics["eval"] = {"seconds": round(evaluation.seconds, 1), "jobs": evaluation.jobs,
+                       "episodes_per_job": config.episodes,
+                       "gaussian_student_action": config.gaussian_student_action,
+                       "env_steps_per_second": round(evaluation.env_steps / max(evaluation.seconds, 1e-9), 1)}
+    return metrics
+
+
+TSV_HEADER = ("task\tgroup\tlabel\treturn_mean\tci_low\tci_high\tn\tci_unit\tnormalised_mean\tnormalised_ci_low\t"
+              "normalised_ci_high")
+
+
+def returns_table(summary: dict, tasks) -> str:
+    """One row per (task, group): the table ``dvc plots`` draws."""
+    rows = [TSV_HEADER]
+    for task in tasks:
+        for group, s in summary[task].items():
+            z = s["normalised"]
+            rows.append(f"{task}\t{group}\t{task}/{group}\t{s['mean']:.3f}\t{s['ci_low']:.3f}\t{s['ci_high']:.3f}\t"
+                        f"{s['n']}\t{s['ci_unit']}\t{z['mean']:.3f}\t{z['ci_low']:.3f}\t{z['ci_high']:.3f}")
+    return "\n".join(rows) + "\n"
+
+
+def write_eval_outputs(out: Path, evaluation: StudyEvaluation, metrics: dict, catalogue: Catalogue,
+                       config: EvalConfig) -> dict:
+    """metrics.json, returns.json (every episode), returns.tsv, returns.png and student_curves.png;
+    returns the per-task summaries drawn (cross-task groups left out)."""
+    write_json(out / "metrics.json", metrics)
+    write_json(out / "returns.json", {task: {group: {str(seed): r.tolist() for seed, r in per_seed.items()}
+                                             for group, per_seed in groups.items()}
+                                      for task, groups in evaluation.returns.items()})
+    with atomic_path(out / "returns.tsv") as tmp:
+        tmp.write_text(returns_table(evaluation.summary, catalogue.tasks))
+    plotted = {task: {g: s for g, s in evaluation.summary[task].items() if not is_cross_group(g)}
+               for task in catalogue.tasks}
+    returns_bar_chart(out / "returns.png", plotted,
+                      f"returns, {config.episodes} episodes per run (95% CI; unit and n per bar)")
+    curves = {run.name: read_curve(run.paths.curve) for run in catalogue.students}
+    learning_curves(out / "student_curves.png", curves, list(catalogue.tasks),
+                    "students: evaluation return during distillation")
+    return plotted
+
+
+def print_summary(plotted: dict, metrics: dict) -> None:
+    for task, groups in plotted.items():
+        for group, s in groups.items():
+            print(f"{task:6s} {group:32s} {s['mean']:7.1f}  [{s['ci_low']:.1f}, {s['ci_high']:.1f}]  "
+                  f"n={s['n']} {s['ci_unit']}s  normalised {s['normalised']['mean']:.1f}")
+    for name, entry in metrics["aggregate"]["probability_of_improvement"].items():
+        print(f"P({name.replace('_vs_', ' > ')}) = {entry['value']:.2f} "
+              f"[{entry['ci_low']:.2f}, {entry['ci_high']:.2f}]")
+    e = metrics["eval"]
+    print(f"eval: {e['jobs']} jobs in {e['seconds']:.0f} s ({e['env_steps_per_second']:.0f} env steps/s)")

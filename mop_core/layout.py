@@ -1,0 +1,73 @@
+"""Where a study's files live, relative to the repository root (the DVC outputs of dvc.yaml).
+
+- ``data/``: DVC-cached artefacts: behaviour snapshots, datasets, relabelled rewards, checkpoints;
+  ``data/resume/`` holds resume files (not outputs: ``dvc repro`` deletes a stage's outputs before
+  it runs, and a resume file must survive that);
+- ``results/``: what a person reads: metrics JSON, learning-curve TSVs, figures, the report.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from mop_core.artifacts import RunPaths
+from mop_core.data.hdf5 import LEVELS
+
+DATA = Path("data")
+RESULTS = Path("results")
+COLLECT_METRICS = RESULTS / "collect" / "metrics.json"
+
+
+@dataclass(frozen=True)
+class CollectPaths:
+    """Where the collect step of one task writes (chosen by the stage, never by the library)."""
+
+    checkpoints: dict[str, Path]  # "medium"/"expert" -> .pt
+    datasets: dict[str, Path]  # level -> .hdf5
+    dataset_metrics: dict[str, Path]  # level -> .json
+    curve: Path  # learning curve .tsv
+    resume: Path | None = None  # the TD3 run's resume file (None: no resume files)
+
+
+def behaviour_checkpoint(task: str, level: str) -> Path:
+    return DATA / "behaviour" / task / f"{level}.pt"
+
+
+def dataset_file(task: str, level: str) -> Path:
+    return DATA / "datasets" / f"{task}-{level}.hdf5"
+
+
+def relabel_file(task: str, level: str) -> Path:
+    return DATA / "relabelled" / f"{task}-{level}.hdf5"
+
+
+def dataset_summary_file(task: str, level: str) -> Path:
+    return RESULTS / "collect" / "datasets" / f"{task}-{level}.json"
+
+
+def collect_paths(task: str) -> CollectPaths:
+    """Every file the collect step of one task writes."""
+    return CollectPaths(
+        checkpoints={level: behaviour_checkpoint(task, level) for level in ("medium", "expert")},
+        datasets={level: dataset_file(task, level) for level in LEVELS},
+        dataset_metrics={level: dataset_summary_file(task, level) for level in LEVELS},
+        curve=RESULTS / "collect" / "curves" / f"{task}.tsv",
+        resume=DATA / "resume" / f"collect-{task}.pt",
+    )
+
+
+def run_paths(name: str, family: str) -> RunPaths:
+    """A training run's final checkpoint (DVC output), metrics and curve (results/) and resume file."""
+    return RunPaths(checkpoint=DATA / family / f"{name}.pt", metrics=RESULTS / family / "metrics" / f"{name}.json",
+                    curve=RESULTS / family / "curves" / f"{name}.tsv", resume=DATA / "resume" / f"{family}-{name}.pt")
+
+
+def student_inputs_file(name: str) -> Path:
+    """The student_inputs stage's record of what student ``name`` reads (its distill entry's dependency)."""
+    return DATA / "student_inputs" / f"{name}.json"
+
+
+def stage_dir(stage: str) -> Path:
+    """results/<stage>/: a stage's own results (eval, shared_computation, relabel, ...)."""
+    return RESULTS / stage

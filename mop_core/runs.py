@@ -1,0 +1,159 @@
+"""The kinds of run a study trains and evaluates, what each is called and where its files are.
+
+- :class:`BehaviourRun`: a TD3 snapshot of the collect stage (medium, expert) per task;
+- :class:`TeacherRun`: a PBRL teacher per (task, level, actor type, seed);
+- :class:`MultitaskRun`: the naive multi-task PBRL baseline per (level, seed);
+- :class:`StudentRun`: a distilled student per (loss, pairing, seed), with the teachers it learns
+  from (one per study task).
+
+Each run has a ``name`` (its files), a ``group`` (the eval stage's key: the runs whose returns form
+one confidence interval, e.g. every seed of a student) and its file paths (mop_core.layout). The
+group names are made here and nowhere else. Which runs a study has: mop_core.catalogue.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from mop_core.artifacts import RunPaths
+from mop_core.layout import behaviour_checkpoint, dataset_file, relabel_file, run_paths
+
+BEHAVIOUR_LEVELS = ("medium", "expert")  # the collect stage's snapshots
+
+
+# ---- evaluation group names (one place: the eval stage writes them, the report reads them) ---------
+def behaviour_group(level: str) -> str:
+    return f"behaviour_{level}"
+
+
+def teacher_group(level: str, actor: str) -> str:
+    return f"teacher_{level}_{actor}"
+
+
+def multitask_group(level: str) -> str:
+    return f"multitask_{level}"
+
+
+def student_group(loss: str, pairing: str) -> str:
+    return f"student_{loss}_{pairing}"
+
+
+def structure_group(loss: str, pairing: str) -> str:
+    """The shared_computation stage's key of a student group (Table 6.1 rows)."""
+    return f"{loss}_{pairing}"
+
+
+def cross_group(level: str, teacher_task: str) -> str:
+    """Task ``teacher_task``'s deterministic teacher evaluated on another task's reward."""
+    return f"cross_{level}_{teacher_task}"
+
+
+def is_cross_group(group: str) -> bool:
+    return group.startswith("cross_")
+
+
+# ---- runs ------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class BehaviourRun:
+    task: str
+    level: str  # medium | expert
+
+    @property
+    def group(self) -> str:
+        return behaviour_group(self.level)
+
+    @property
+    def checkpoint(self) -> Path:
+        return behaviour_checkpoint(self.task, self.level)
+
+
+@dataclass(frozen=True)
+class TeacherRun:
+    task: str
+    level: str
+    actor: str  # PBRL actor type: deterministic | gaussian
+    seed: int
+    family = "teachers"
+
+    @property
+    def name(self) -> str:
+        return f"{self.task}-{self.level}-{self.actor}-{self.seed}"
+
+    @property
+    def group(self) -> str:
+        return teacher_group(self.level, self.actor)
+
+    @property
+    def paths(self) -> RunPaths:
+        return run_paths(self.name, self.family)
+
+    @property
+    def dataset(self) -> Path:
+        return dataset_file(self.task, self.level)
+
+    @property
+    def relabel(self) -> Path:
+        return relabel_file(self.task, self.level)
+
+
+@dataclass(frozen=True)
+class MultitaskRun:
+    level: str
+    seed: int
+    tasks: tuple[str, ...]
+    family = "multitask"
+
+    @property
+    def name(self) -> str:
+        return f"{self.level}-{self.seed}"
+
+    @property
+    def group(self) -> str:
+        return multitask_group(self.level)
+
+    @property
+    def paths(self) -> RunPaths:
+        return run_paths(self.name, self.family)
+
+    def reference_group(self) -> str:
+        """The single-task teachers it is compared with (every seed's)."""
+        return teacher_group(self.level, "deterministic")
+
+
+@dataclass(frozen=True)
+class StudentRun:
+    loss: str
+    pairing: str
+    seed: int
+    teachers: tuple[TeacherRun, ...]  # one per task, in task-id order
+    family = "students"
+
+    @property
+    def name(self) -> str:
+        return f"{self.loss}-{self.pairing}-{self.seed}"
+
+    @property
+    def group(self) -> str:
+        return student_group(self.loss, self.pairing)
+
+    @property
+    def paths(self) -> RunPaths:
+        return run_paths(self.name, self.family)
+
+    @property
+    def tasks(self) -> tuple[str, ...]:
+        return tuple(t.task for t in self.teachers)
+
+    @property
+    def levels(self) -> tuple[str, ...]:
+        return tuple(t.level for t in self.teachers)
+
+    @property
+    def datasets(self) -> tuple[Path, ...]:
+        """Each task's offline dataset: the one its teacher was trained on."""
+        return tuple(t.dataset for t in self.teachers)
+
+    @property
+    def teacher_seed(self) -> int:
+        return self.teachers[0].seed

@@ -1,0 +1,189 @@
+"""The study's grid as typed configs: its tasks and levels, and which teachers, baselines and
+students it trains (the catalogue, mop_core.catalogue, lists the runs they make).
+
+A stage reads params.yaml (stages/common.py) and hands the mapping here; nothing here reads a file.
+A bad value raises ConfigError naming its key (``distill.pairings``, ``train_teachers.seeds``).
+Each learner's own settings are typed next to it (``teacher_config`` in mop_core.teachers,
+``distill_config`` in mop_core.distill.distiller, ...); mop_core.study_params checks the whole file.
+This module imports no training code, so a stage that reads the grid depends on no learner's code.
+
+A *pairing* names the dataset level of each study task's teacher, joined by ``+`` in task order
+(``expert+medium``: stand's expert teacher with walk's medium teacher, thesis Appendix E); a
+single level pairs every task with that level.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+from mop_core.config import ConfigError, from_mapping, require, require_unique
+from mop_core.data.hdf5 import LEVELS
+from mop_core.nn import ACTOR_TYPES
+from mop_core.schedule import TrainSchedule
+from mop_core.tasks import check_task_list
+
+SECTIONS = ("study", "collect", "relabel", "train_teachers", "train_multitask", "distill", "eval",
+            "shared_computation")
+
+
+@dataclass(frozen=True)
+class StudyConfig:
+    """The study grid and process settings shared by all stages."""
+
+    tasks: tuple[str, ...]  # walker tasks of the study (any subset of the registry, any order)
+    levels: tuple[str, ...] = LEVELS  # dataset levels later stages study (collect always writes all)
+    seed: int = 0  # study seed; every task/stage derives its own seeds from it
+    episode_length: int = 1000  # control steps per walker episode (1000 = dm_control's 25 s)
+    device: str = "auto"  # "auto" (CUDA if present), "cpu", "cuda[:N]"
+    progress: bool = True  # tqdm progress bars (MOP_PROGRESS=0 switches them off)
+
+    def __post_init__(self) -> None:
+        check_task_list(self.tasks, "tasks")
+        for i, level in enumerate(self.levels):
+            require(level in LEVELS, f"levels[{i}]", f"one of {', '.join(LEVELS)}", level)
+        require(len(self.levels) > 0 and len(set(self.levels)) == len(self.levels), "levels",
+                "a non-empty list without repeats", list(self.levels))
+        require(self.seed >= 0, "seed", "a non-negative integer", self.seed)
+        require(self.episode_length > 0, "episode_length", "a positive integer", self.episode_length)
+
+
+@dataclass(frozen=True)
+class TeacherGrid:
+    """The train_teachers section: one teacher per (task, level, actor, seed) and how each trains."""
+
+    actors: tuple[str, ...]  # PBRL actor types (deterministic; gaussian for the KL loss)
+    seeds: tuple[int, ...]  # training seeds
+    schedule: TrainSchedule
+    threads: int = 1  # torch threads (matrix stages run one after another)
+    pbrl: dict[str, Any] = field(default_factory=dict)  # PBRLConfig fields except actor (checked per actor)
+
+    def __post_init__(self) -> None:
+        require(len(self.actors) > 0, "actors", "a non-empty list", list(self.actors))
+        for i, actor in enumerate(self.actors):
+            require(actor in ACTOR_TYPES, f"actors[{i}]", f"one of {', '.join(ACTOR_TYPES)}", actor)
+        require_unique(self.actors, "actors")
+        require(len(self.seeds) > 0 and all(s >= 0 for s in self.seeds), "seeds", "a non-empty list of "
+                "non-negative integers", list(self.seeds))
+        require_unique(self.seeds, "seeds")
+        require(self.threads >= 1, "threads", "a positive integer", self.threads)
+        if "actor" in self.pbrl:
+            raise ConfigError("pbrl.actor: set the actor types in train_teachers.actors instead")
+
+
+@dataclass(frozen=True)
+class MultitaskGrid:
+    """The train_multitask section: one naive multi-task PBRL baseline per (level, seed)."""
+
+    levels: tuple[str, ...]
+    seeds: tuple[int, ...]
+
+    def __post_init__(self) -> None:
+        require_unique(self.levels, "levels")
+        require(all(s >= 0 for s in self.seeds), "seeds", "non-negative integers", list(self.seeds))
+        require_unique(self.seeds, "seeds")
+
+
+DISTILL_GRID_KEYS = ("losses", "pairings", "seeds", "teacher_seed", "threads", "schedule")
+
+
+@dataclass(frozen=True)
+class DistillGrid:
+    """The students of a study: one per (loss, pairing, seed), and how they train."""
+
+    losses: tuple[str, ...]
+    pairings: tuple[str, ...]
+    seeds: tuple[int, ...]
+    teacher_seed: int  # which train_teachers seed the students learn from
+    threads: int
+    schedule: TrainSchedule
+
+
+# ---- sections -------------------------------------------------------------------------------------
+def check_sections(params: Mapping[str, Any], where: str = "params.yaml") -> None:
+    """Refuse a section no stage reads (a misspelled ``distil:`` would otherwise be ignored)."""
+    unknown = sorted(set(params) - set(SECTIONS), key=str)
+    if unknown:
+        raise ConfigError(f"{unknown[0]}: unknown section in {where}; known: {', '.join(SECTIONS)}")
+
+
+def section(params: Mapping[str, Any], name: str) -> Any:
+    if name not in params:
+        raise ConfigError(f"{name}: missing section in params.yaml")
+    return params[name]
+
+
+def typed_section(params: Mapping[str, Any], name: str, config_type: type):
+    """Section ``name`` as ``config_type`` (unknown keys and bad values raise ConfigError under ``name``)."""
+    return from_mapping(config_type, section(params, name), name)
+
+
+def positive_threads(value: Any, key: str) -> int:
+    require(isinstance(value, int) and not isinstance(value, bool) and value >= 1, key, "a positive integer", value)
+    return value
+
+
+def study_config(params: Mapping[str, Any]) -> StudyConfig:
+    return from_mapping(StudyConfig, section(params, "study"), "study")
+
+
+def teacher_grid(params: Mapping[str, Any]) -> TeacherGrid:
+    return from_mapping(TeacherGrid, section(params, "train_teachers"), "train_teachers")
+
+
+def multitask_grid(params: Mapping[str, Any], study: StudyConfig) -> MultitaskGrid:
+    grid = from_mapping(MultitaskGrid, section(params, "train_multitask"), "train_multitask")
+    for i, level in enumerate(grid.levels):
+        require(level in study.levels, f"train_multitask.levels[{i}]", f"one of study.levels {list(study.levels)}",
+                level)
+    return grid
+
+
+def pairing_levels(pairing: str, study: StudyConfig, key: str = "--pairing") -> tuple[str, ...]:
+    """The teacher level per study task of a pairing (``medium`` or ``expert+medium``)."""
+    levels = tuple(pairing.split("+"))
+    if len(levels) == 1:
+        levels = levels * len(study.tasks)
+    if len(levels) != len(study.tasks):
+        raise ConfigError(f"{key}: expected one level or one per study task ({len(study.tasks)}) joined by '+', "
+                          f"got {pairing!r}")
+    for level in levels:
+        require(level in study.levels, key, f"levels among study.levels {list(study.levels)}", pairing)
+    return levels
+
+
+def distill_grid(params: Mapping[str, Any], study: StudyConfig, losses: Mapping[str, str]) -> DistillGrid:
+    """The distill section's grid; ``losses``: the known loss names and the teacher actor type each
+    distils (mop_core.catalogue.LOSS_ACTORS, from the loss table)."""
+    raw = section(params, "distill")
+    grid = {k: raw.get(k) for k in DISTILL_GRID_KEYS}
+    for key in ("losses", "pairings", "seeds"):
+        require(isinstance(grid[key], list) and grid[key], f"distill.{key}", "a non-empty list", grid[key])
+    for loss in grid["losses"]:
+        require(loss in losses, "distill.losses", f"entries among {tuple(losses)}", grid["losses"])
+    for pairing in grid["pairings"]:
+        pairing_levels(str(pairing), study, "distill.pairings")
+    for seed in grid["seeds"]:
+        require(isinstance(seed, int) and not isinstance(seed, bool) and seed >= 0, "distill.seeds",
+                "non-negative integers", grid["seeds"])
+    for key in ("losses", "pairings", "seeds"):
+        require_unique(grid[key], f"distill.{key}")
+    same = {}
+    for pairing in grid["pairings"]:  # 'medium' and 'medium+medium' name the same students
+        levels = pairing_levels(str(pairing), study, "distill.pairings")
+        require(levels not in same, "distill.pairings", f"distinct pairings ({same.get(levels)!r} and "
+                f"{pairing!r} both pair the tasks with {'+'.join(levels)})", grid["pairings"])
+        same[levels] = pairing
+    teachers = section(params, "train_teachers")  # typed by teacher_grid; read raw so each error names its key
+    require(isinstance(grid["teacher_seed"], int) and not isinstance(grid["teacher_seed"], bool),
+            "distill.teacher_seed", "an integer", grid["teacher_seed"])
+    require(grid["teacher_seed"] in teachers.get("seeds", []), "distill.teacher_seed",
+            f"one of train_teachers.seeds {teachers.get('seeds')}", grid["teacher_seed"])
+    for loss in grid["losses"]:
+        actor = losses[loss]
+        require(actor in teachers.get("actors", []), "distill.losses",
+                f"{actor} teachers for the {loss} loss: add {actor} to train_teachers.actors", grid["losses"])
+    threads = positive_threads(grid["threads"] if grid["threads"] is not None else 1, "distill.threads")
+    schedule = from_mapping(TrainSchedule, grid["schedule"] or {}, "distill.schedule")
+    return DistillGrid(tuple(grid["losses"]), tuple(str(p) for p in grid["pairings"]), tuple(grid["seeds"]),
+                       grid["teacher_seed"], threads, schedule)

@@ -1,0 +1,32 @@
+"""student_inputs stage: for every student, a record of the files it will read, by content hash.
+
+    python stages/student_inputs.py
+
+Writes data/student_inputs/<student>.json (mop_core.catalogue.student_inputs): the SHA-256 of each
+teacher checkpoint the student learns from and the content hash of each dataset its states come
+from. Each ``distill`` entry depends on its own record instead of on every teacher, so a retrained
+teacher reruns only its students (this stage takes seconds; a record whose files did not change is
+rewritten byte for byte, and DVC leaves its student alone).
+"""
+
+from __future__ import annotations
+
+from common import load_params, require_inputs, run_stage
+
+from mop_core.catalogue import build_catalogue, student_inputs
+from mop_core.data import write_json
+from mop_core.layout import student_inputs_file
+
+
+def main() -> None:
+    catalogue = build_catalogue(load_params())
+    require_inputs(sorted({t.paths.checkpoint for run in catalogue.students for t in run.teachers}),
+                   "train_teachers")
+    require_inputs(sorted({d for run in catalogue.students for d in run.datasets}), "collect")
+    for run in catalogue.students:
+        write_json(student_inputs_file(run.name), student_inputs(run))
+    print(f"student_inputs: recorded the teachers and datasets of {len(catalogue.students)} students")
+
+
+if __name__ == "__main__":
+    run_stage(main)
