@@ -1,0 +1,229 @@
+"""mop_core/catalogue.py and mop_core/runs.py: every run of the tiny study, in the stages' order, what each
+student learns from, which policies the eval stage rolls out where, and what each group is compared with."""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+from pathlib import Path
+
+import h5py
+import pytest
+
+from mop_core.catalogue import (
+    Job,
+    Reference,
+    build_catalogue,
+    check_student_inputs,
+    make_student,
+    student_inputs,
+)
+from mop_core.config import InputFileError
+from mop_core.runs import (
+    BehaviourRun,
+    MultitaskRun,
+    StudentRun,
+    TeacherRun,
+    cross_group,
+    is_cross_group,
+    structure_group,
+)
+from mop_core.runtime import derive_seeds
+
+TASKS = ("stand", "walk")
+
+
+@pytest.fixture(scope="module")
+def catalogue(tiny_params):
+    return build_catalogue(tiny_params)
+
+
+def _with(params: dict, **sections) -> dict:
+    """A copy of ``params`` with ``section={key: value}`` entries replaced."""
+    params = copy.deepcopy(params)
+    for name, values in sections.items():
+        params[name].update(values)
+    return params
+
+
+def test_the_tiny_study_has_these_runs_in_this_order(catalogue):
+    assert catalogue.tasks == TASKS and catalogue.levels == ("medium",) and catalogue.study_seed == 0
+    assert catalogue.behaviour == (BehaviourRun("stand", "medium"), BehaviourRun("stand", "expert"),
+                                   BehaviourRun("walk", "medium"), BehaviourRun("walk", "expert"))
+    assert [t.name for t in catalogue.teachers] == ["stand-medium-deterministic-0", "stand-medium-gaussian-0",
+                                                    "walk-medium-deterministic-0", "walk-medium-gaussian-0"]
+    assert catalogue.multitask == (MultitaskRun("medium", 0, TASKS),)
+    assert [s.name for s in catalogue.students] == ["mse-medium-0", "q-medium-0", "kl-medium-0"]
+    assert catalogue.teacher_seed == 0 and catalogue.teacher_actors == ("deterministic", "gaussian")
+
+
+def test_run_names_groups_and_files(catalogue):
+    behaviour = catalogue.behaviour[1]
+    assert behaviour.group == "behaviour_expert" and behaviour.checkpoint == Path("data/behaviour/stand/expert.pt")
+    teacher = catalogue.teachers[1]
+    assert teacher.group == "teacher_medium_gaussian"
+    assert teacher.paths.checkpoint == Path("data/teachers/stand-medium-gaussian-0.pt")
+    assert teacher.paths.metrics == Path("results/teachers/metrics/stand-medium-gaussian-0.json")
+    assert teacher.paths.curve == Path("results/teachers/curves/stand-medium-gaussian-0.tsv")
+    assert teacher.paths.resume == Path("data/resume/teachers-stand-medium-gaussian-0.pt")
+    assert teacher.dataset == Path("data/datasets/stand-medium.hdf5")
+    assert teacher.relabel == Path("data/relabelled/stand-medium.hdf5")
+    multitask = catalogue.multitask[0]
+    assert multitask.name == "medium-0" and multitask.group == "multitask_medium"
+    assert multitask.paths.checkpoint == Path("data/multitask/medium-0.pt")
+    assert multitask.reference_group() == "teacher_medium_deterministic"
+    student = catalogue.students[2]
+    assert student.group == "student_kl_medium" and structure_group("kl", "medium") == "kl_medium"
+    assert student.paths.checkpoint == Path("data/students/kl-medium-0.pt")
+    assert student.tasks == TASKS and student.levels == ("medium", "medium") and student.teacher_seed == 0
+    assert student.datasets == (Path("data/datasets/stand-medium.hdf5"), Path("data/datasets/walk-medium.hdf5"))
+    assert cross_group("expert", "walk") == "cross_expert_walk"
+    assert is_cross_group("cross_medium_stand") and not is_cross_group("teacher_medium_deterministic")
+
+
+def test_kl_students_learn_from_gaussian_teachers_mse_and_q_from_deterministic_ones(catalogue):
+    for student in catalogue.students:
+        actor = "gaussian" if student.loss == "kl" else "deterministic"
+        assert student.teachers == tuple(TeacherRun(task, "medium", actor, 0) for task in TASKS)
+        assert set(student.teachers) <= set(catalogue.teachers)  # every teacher a student needs is trained
+
+
+def test_eval_jobs_cover_every_policy_and_the_cross_task_teachers(catalogue):
+    def teacher(task, actor):
+        return Path(f"data/teachers/{task}-medium-{actor}-0.pt")
+
+    expected = []
+    for task, other in (("stand", "walk"), ("walk", "stand")):
+        expected += [Job("behaviour_medium", 0, Path(f"data/behaviour/{task}/medium.pt"), task),
+                     Job("behaviour_expert", 0, Path(f"data/behaviour/{task}/expert.pt"), task),
+                     Job("teacher_medium_deterministic", 0, teacher(task, "deterministic"), task),
+                     Job("teacher_medium_gaussian", 0, teacher(task, "gaussian"), task),
+                     Job(f"cross_medium_{task}", 0, teacher(task, "deterministic"), other)]
+    expected += [Job("multitask_medium", 0, Path("data/multitask/medium-0.pt"), task, task) for task in TASKS]
+    for loss in ("mse", "q", "kl"):
+        expected += [Job(f"student_{loss}_medium", 0, Path(f"data/students/{loss}-medium-0.pt"), task, task)
+                     for task in TASKS]
+    assert catalogue.eval_jobs() == expected
+    assert catalogue.cross_task_teachers() == [TeacherRun("stand", "medium", "deterministic", 0),
+                                               TeacherRun("walk", "medium", "deterministic", 0)]
+
+
+def test_only_gaussian_students_sample_when_asked(catalogue):
+    sampled = catalogue.eval_jobs(sample_gaussian_students=True)
+    plain = catalogue.eval_jobs()
+    assert len(sampled) == len(plain)
+    kl = catalogue.students[2]
+    for job, same in zip(sampled, plain):
+        if job.group == "student_kl_medium":
+            seed = derive_seeds([0, "eval", "sample", "kl-medium-0", job.eval_task], ("sample",))["sample"]
+            assert job.sample_seed == seed == catalogue.sample_seed(kl, job.eval_task)
+            assert job == Job(same.group, same.train_seed, same.checkpoint, same.eval_task, same.task_id, seed)
+        else:
+            assert job == same and job.sample_seed is None
+    assert catalogue.sample_seed(kl, "stand") != catalogue.sample_seed(kl, "walk")
+
+
+def test_references_and_student_comparisons(catalogue):
+    deterministic = {task: Reference("teacher_medium_deterministic", 0) for task in TASKS}
+    assert catalogue.references() == {
+        "multitask_medium": {task: Reference("teacher_medium_deterministic") for task in TASKS},  # every seed's mean
+        "student_mse_medium": deterministic,
+        "student_q_medium": deterministic,
+        "student_kl_medium": {task: Reference("teacher_medium_gaussian", 0) for task in TASKS},
+    }
+    assert catalogue.student_comparisons() == [("student_mse_medium", "student_q_medium"),
+                                               ("student_mse_medium", "student_kl_medium"),
+                                               ("student_q_medium", "student_kl_medium")]
+
+
+def test_a_mixed_pairing_maps_its_levels_per_task(tiny_params):
+    params = _with(tiny_params, study={"levels": ["expert", "medium"]},
+                   distill={"pairings": ["expert+medium", "medium"], "seeds": [0, 1], "losses": ["mse", "kl"]})
+    catalogue = build_catalogue(params)
+    assert [t.name for t in catalogue.teachers[:4]] == ["stand-expert-deterministic-0", "stand-expert-gaussian-0",
+                                                        "stand-medium-deterministic-0", "stand-medium-gaussian-0"]
+    assert len(catalogue.teachers) == 8
+    assert [s.name for s in catalogue.students] == ["mse-expert+medium-0", "mse-expert+medium-1", "mse-medium-0",
+                                                    "mse-medium-1", "kl-expert+medium-0", "kl-expert+medium-1",
+                                                    "kl-medium-0", "kl-medium-1"]
+    mixed = catalogue.students[0]
+    assert mixed.teachers == (TeacherRun("stand", "expert", "deterministic", 0),
+                              TeacherRun("walk", "medium", "deterministic", 0))
+    assert mixed.levels == ("expert", "medium") and mixed.group == "student_mse_expert+medium"
+    assert mixed.datasets == (Path("data/datasets/stand-expert.hdf5"), Path("data/datasets/walk-medium.hdf5"))
+    assert catalogue.students[4].teachers == (TeacherRun("stand", "expert", "gaussian", 0),
+                                              TeacherRun("walk", "medium", "gaussian", 0))
+    references = catalogue.references()
+    assert references["student_mse_expert+medium"] == {"stand": Reference("teacher_expert_deterministic", 0),
+                                                       "walk": Reference("teacher_medium_deterministic", 0)}
+    assert references["student_kl_expert+medium"] == {"stand": Reference("teacher_expert_gaussian", 0),
+                                                      "walk": Reference("teacher_medium_gaussian", 0)}
+    # head to head only within a pairing
+    assert catalogue.student_comparisons() == [("student_mse_expert+medium", "student_kl_expert+medium"),
+                                               ("student_mse_medium", "student_kl_medium")]
+    groups = catalogue.student_groups()
+    assert list(groups) == ["student_mse_expert+medium", "student_mse_medium", "student_kl_expert+medium",
+                            "student_kl_medium"]
+    assert [s.seed for s in groups["student_mse_expert+medium"]] == [0, 1]
+    cross = [j for j in catalogue.eval_jobs() if is_cross_group(j.group)]
+    assert [(j.group, j.eval_task) for j in cross] == [("cross_expert_stand", "walk"), ("cross_medium_stand", "walk"),
+                                                       ("cross_expert_walk", "stand"), ("cross_medium_walk", "stand")]
+
+
+def test_the_teacher_seed_students_learn_from(tiny_params):
+    params = _with(tiny_params, train_teachers={"seeds": [0, 1]}, distill={"teacher_seed": 1})
+    catalogue = build_catalogue(params)
+    assert [t.seed for t in catalogue.teachers] == [0, 1] * 4
+    assert all(t.seed == 1 for s in catalogue.students for t in s.teachers)
+    assert catalogue.references()["student_mse_medium"]["walk"] == Reference("teacher_medium_deterministic", 1)
+    cross = [j for j in catalogue.eval_jobs() if is_cross_group(j.group)]
+    assert [j.checkpoint.name for j in cross] == ["stand-medium-deterministic-1.pt", "walk-medium-deterministic-1.pt"]
+    assert all(j.train_seed == 1 for j in cross)
+
+
+def test_no_cross_task_jobs_without_deterministic_teachers(tiny_params):
+    params = _with(tiny_params, train_teachers={"actors": ["gaussian"]}, distill={"losses": ["kl"]})
+    catalogue = build_catalogue(params)
+    assert catalogue.cross_task_teachers() == []
+    assert not [j for j in catalogue.eval_jobs() if is_cross_group(j.group)]
+    assert catalogue.student_comparisons() == []  # one loss: nothing to compare
+
+
+def test_make_student():
+    student = make_student("q", "expert+medium", 3, TASKS, ("expert", "medium"), 2)
+    assert student == StudentRun("q", "expert+medium", 3, (TeacherRun("stand", "expert", "deterministic", 2),
+                                                           TeacherRun("walk", "medium", "deterministic", 2)))
+    assert student.name == "q-expert+medium-3" and student.teacher_seed == 2
+
+
+def test_student_inputs_record_the_teachers_and_datasets_by_content(catalogue, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the run paths are relative to the repository root
+    student = catalogue.students[0]
+    for i, teacher in enumerate(student.teachers):
+        teacher.paths.checkpoint.parent.mkdir(parents=True, exist_ok=True)
+        teacher.paths.checkpoint.write_bytes(b"teacher %d" % i)
+        teacher.dataset.parent.mkdir(parents=True, exist_ok=True)
+        with h5py.File(teacher.dataset, "w") as h5:
+            h5.attrs["content_sha256"] = f"content-{teacher.task}"
+    record = student_inputs(student)
+    assert record == {
+        "student": "mse-medium-0", "tasks": ["stand", "walk"],
+        "teachers": [{"path": "data/teachers/stand-medium-deterministic-0.pt",
+                      "sha256": hashlib.sha256(b"teacher 0").hexdigest()},
+                     {"path": "data/teachers/walk-medium-deterministic-0.pt",
+                      "sha256": hashlib.sha256(b"teacher 1").hexdigest()}],
+        "datasets": [{"path": "data/datasets/stand-medium.hdf5", "content_sha256": "content-stand"},
+                     {"path": "data/datasets/walk-medium.hdf5", "content_sha256": "content-walk"}]}
+    where = Path("data/student_inputs/mse-medium-0.json")
+    check_student_inputs(student, record, where)
+    student.teachers[1].paths.checkpoint.write_bytes(b"retrained")
+    with pytest.raises(InputFileError) as err:
+        check_student_inputs(student, record, where)
+    message = str(err.value)  # names the file that changed and the record
+    assert message.startswith("data/teachers/walk-medium-deterministic-0.pt: ") and str(where) in message
+    student.teachers[1].paths.checkpoint.write_bytes(b"teacher 1")
+    check_student_inputs(student, record, where)
+    with h5py.File(student.teachers[0].dataset, "a") as h5:
+        h5.attrs["content_sha256"] = "recollected"
+    with pytest.raises(InputFileError, match=r"^data/datasets/stand-medium.hdf5: "):
+        check_student_inputs(student, record, where)

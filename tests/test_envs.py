@@ -1,0 +1,108 @@
+"""mop_core/envs.py: seeded walker environments with flat observations, a time-out at exactly
+``episode_length`` steps, and K of them stepped together as one batch."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mop_core.config import ConfigError
+from mop_core.envs import (
+    ACT_DIM,
+    OBS_DIM,
+    PHYSICS_DIM,
+    VectorWalkerEnv,
+    WalkerEnv,
+    flatten_observation,
+    physics_replay_rewards,
+)
+from mop_core.tasks import get_task
+
+
+def _actions(steps: int, k: int, seed: int = 0) -> np.ndarray:
+    return np.random.default_rng(seed).uniform(-1, 1, size=(steps, k, ACT_DIM))
+
+
+def test_reset_is_seeded_and_observations_are_24_float64s():
+    first = WalkerEnv("walk", seed=3, episode_length=20).reset()
+    assert first.shape == (OBS_DIM,) == (24,) and first.dtype == np.float64
+    np.testing.assert_array_equal(WalkerEnv("walk", seed=3, episode_length=20).reset(), first)
+    assert not np.array_equal(WalkerEnv("walk", seed=4, episode_length=20).reset(), first)
+    env = WalkerEnv("walk", seed=3, episode_length=20)
+    env.reset()
+    second = env.reset()  # the seed fixes the sequence of episodes, not every episode's start
+    assert not np.array_equal(second, first)
+
+
+def test_the_observation_is_orientations_height_velocity():
+    env = WalkerEnv("stand", seed=0, episode_length=20)
+    env.reset()
+    observation = env.dm_env.step(np.zeros(ACT_DIM)).observation
+    flat = flatten_observation(observation)
+    np.testing.assert_array_equal(flat[:14], observation["orientations"])
+    assert flat[14] == observation["height"]
+    np.testing.assert_array_equal(flat[15:], observation["velocity"])
+
+
+def test_a_step_reports_the_next_state_reward_and_features():
+    env = WalkerEnv("walk", seed=1, episode_length=20)
+    env.reset()
+    for action in _actions(3, 1)[:, 0]:
+        step = env.step(action)
+    assert step.observation.shape == (24,) and step.observation.dtype == np.float64
+    assert step.physics.shape == (PHYSICS_DIM,) and step.physics.dtype == np.float64
+    assert step.features.shape == (3,) and step.features.dtype == np.float64
+    np.testing.assert_array_equal(step.physics, env.physics.get_state())
+    assert isinstance(step.reward, float)
+    assert step.reward == pytest.approx(float(get_task("walk").reward(step.features)), abs=1e-9)
+    assert step.reward == pytest.approx(env.dm_env.task.get_reward(env.physics), abs=1e-12)
+
+
+def test_an_episode_times_out_at_episode_length_and_reset_restarts_the_clock():
+    env = WalkerEnv("stand", seed=0, episode_length=5)
+    env.reset()
+    timeouts = [env.step(np.zeros(ACT_DIM)).timeout for _ in range(5)]
+    assert timeouts == [False] * 4 + [True]
+    env.reset()
+    assert [env.step(np.zeros(ACT_DIM)).timeout for _ in range(5)] == [False] * 4 + [True]
+
+
+def test_bad_arguments_are_refused():
+    with pytest.raises(ValueError, match=r"^episode_length: expected a positive integer, got 0$"):
+        WalkerEnv("stand", seed=0, episode_length=0)
+    with pytest.raises(ConfigError, match=r"^task: unknown task 'hop'"):
+        WalkerEnv("hop", seed=0)
+    with pytest.raises(ValueError, match=r"^seeds: expected at least one seed$"):
+        VectorWalkerEnv("stand", [], episode_length=5)
+
+
+def test_a_vector_env_equals_its_members_stepped_one_by_one():
+    seeds, length = [5, 6, 7], 6
+    vector = VectorWalkerEnv("walk", seeds, episode_length=length)
+    singles = [WalkerEnv("walk", seed, episode_length=length) for seed in seeds]
+    assert vector.num_envs == 3 and vector.episode_length == length
+    obs = vector.reset()
+    assert obs.shape == (3, 24) and obs.dtype == np.float64
+    np.testing.assert_array_equal(obs, np.stack([env.reset() for env in singles]))
+    for t, actions in enumerate(_actions(length, 3, seed=1)):
+        batch = vector.step(actions)
+        steps = [env.step(a) for env, a in zip(singles, actions)]
+        assert batch.observation.shape == (3, 24) and batch.physics.shape == (3, 18)
+        assert batch.features.shape == (3, 3) and batch.reward.shape == (3,) and batch.timeout.dtype == bool
+        np.testing.assert_array_equal(batch.observation, np.stack([s.observation for s in steps]))
+        np.testing.assert_array_equal(batch.reward, [s.reward for s in steps])
+        np.testing.assert_array_equal(batch.physics, np.stack([s.physics for s in steps]))
+        np.testing.assert_array_equal(batch.features, np.stack([s.features for s in steps]))
+        np.testing.assert_array_equal(batch.timeout, [t == length - 1] * 3)
+
+
+def test_physics_replay_gives_each_tasks_reward_of_the_stored_states():
+    env = WalkerEnv("walk", seed=2, episode_length=10)
+    env.reset()
+    steps = [env.step(a) for a in _actions(4, 1, seed=2)[:, 0]]
+    states = np.stack([s.physics for s in steps])
+    replayed = physics_replay_rewards(states, ["walk", "stand"])
+    assert set(replayed) == {"walk", "stand"} and replayed["walk"].shape == (4,)
+    np.testing.assert_allclose(replayed["walk"], [s.reward for s in steps], atol=1e-9)
+    features = np.stack([s.features for s in steps])
+    np.testing.assert_allclose(replayed["stand"], get_task("stand").reward(features), atol=1e-9)

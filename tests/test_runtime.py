@@ -1,0 +1,123 @@
+"""mop_core/runtime.py: seeds from what a run is, thread pinning, the device, progress bars, the worker
+pool and the stop at the first non-finite loss."""
+
+from __future__ import annotations
+
+import math
+import os
+import zlib
+
+import numpy as np
+import pytest
+import torch
+
+from mop_core.config import ConfigError
+from mop_core.runtime import (
+    TrainingDivergedError,
+    derive_seeds,
+    parallel_map,
+    progress_enabled,
+    require_finite,
+    resolve_device,
+    set_threads,
+)
+
+
+def test_derive_seeds_is_a_function_of_the_key():
+    seeds = derive_seeds([0, "stand", "medium"], ("agent", "sampler", "eval"))
+    assert list(seeds) == ["agent", "sampler", "eval"]
+    assert seeds == derive_seeds([0, "stand", "medium"], ("agent", "sampler", "eval"))
+    assert all(isinstance(v, int) and 0 <= v < 2**32 for v in seeds.values())
+    assert len(set(seeds.values())) == 3  # independent seeds per name
+    # strings enter as their CRC-32
+    assert seeds == derive_seeds([0, zlib.crc32(b"stand"), zlib.crc32(b"medium")], ("agent", "sampler", "eval"))
+    # numpy's SeedSequence of the key, one spawned child per name; pinned: a change here changes every run
+    children = np.random.SeedSequence([0, zlib.crc32(b"stand"), zlib.crc32(b"medium")]).spawn(3)
+    assert seeds == {n: int(c.generate_state(1)[0]) for n, c in zip(("agent", "sampler", "eval"), children)}
+    assert seeds == {"agent": 3036518173, "sampler": 2518971061, "eval": 3333278194}
+
+
+def test_derive_seeds_does_not_depend_on_the_grid_around_a_run():
+    walk = derive_seeds([0, "walk", "expert"], ("agent",))
+    assert walk != derive_seeds([0, "stand", "expert"], ("agent",))
+    assert walk != derive_seeds([1, "walk", "expert"], ("agent",))
+    assert walk != derive_seeds([0, "walk", "medium"], ("agent",))
+    assert walk != derive_seeds([0, "expert", "walk"], ("agent",))  # the order of the key matters
+    # the seed of a name is its position's: listing more names leaves the first one's unchanged
+    assert derive_seeds([0, "walk", "expert"], ("agent", "sampler"))["agent"] == walk["agent"]
+
+
+def test_set_threads_pins_torch_and_the_blas_libraries(monkeypatch):
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        monkeypatch.delenv(var, raising=False)  # restored after the test
+    try:
+        set_threads(1)
+        assert torch.get_num_threads() == 1
+        set_threads(2)  # again, after the inter-op threads were fixed: no error
+        assert torch.get_num_threads() == 2
+        assert [os.environ[v] for v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")] == ["2"] * 3
+        set_threads(1)
+        assert torch.get_num_threads() == 1 and os.environ["OMP_NUM_THREADS"] == "1"
+    finally:
+        torch.set_num_threads(1)
+
+
+def test_resolve_device(monkeypatch):
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert resolve_device("auto") == torch.device("cpu")
+    assert resolve_device("cpu") == torch.device("cpu")
+    with pytest.raises(ConfigError, match=r"^study.device: 'cuda:1' requested but CUDA is not available"):
+        resolve_device("cuda:1", "study.device")
+    with pytest.raises(ConfigError, match=r"^device: 'cuda' requested"):
+        resolve_device("cuda")
+    with pytest.raises(ConfigError, match=r"^study.device: expected 'auto', 'cpu' or 'cuda\[:N\]', got 'gpu'$"):
+        resolve_device("gpu", "study.device")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    assert resolve_device("auto") == torch.device("cuda")
+    assert resolve_device("cuda:1") == torch.device("cuda:1")
+    assert resolve_device("cpu") == torch.device("cpu")
+
+
+def test_progress_bars_show_when_requested_unless_switched_off(monkeypatch):
+    monkeypatch.delenv("MOP_PROGRESS", raising=False)
+    assert progress_enabled(True) and not progress_enabled(False)
+    monkeypatch.setenv("MOP_PROGRESS", "1")
+    assert progress_enabled(True)
+    monkeypatch.setenv("MOP_PROGRESS", "0")
+    assert not progress_enabled(True) and not progress_enabled(False)
+
+
+ARGS = [(17, 5), (3, 7), (100, 9), (-8, 3), (40, 6)]
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_parallel_map_returns_results_in_order(workers):
+    assert parallel_map(divmod, ARGS, workers, "test") == [divmod(*a) for a in ARGS]
+    assert parallel_map(divmod, ARGS[:1], workers, "test") == [(3, 2)]
+
+
+def test_parallel_map_runs_in_worker_processes_only_when_there_is_work_for_two():
+    here = os.getpid()
+    assert parallel_map(os.getpid, [()] * 3, 1, "test") == [here] * 3
+    assert parallel_map(os.getpid, [()], 2, "test") == [here]  # one call: in this process
+    pids = parallel_map(os.getpid, [()] * 4, 2, "test")
+    assert len(pids) == 4 and here not in pids
+
+
+def test_parallel_map_of_nothing_is_empty():
+    assert parallel_map(divmod, [], 1, "test") == []
+
+
+def test_parallel_map_of_nothing_is_empty_with_several_workers():
+    assert parallel_map(divmod, [], 2, "test") == []
+
+
+def test_require_finite_stops_at_the_first_non_finite_value():
+    require_finite({"critic_loss": 1.0, "actor_loss": -2.5e9}, "teacher stand", 10)
+    with pytest.raises(TrainingDivergedError) as err:
+        require_finite({"critic_loss": 1.0, "actor_loss": math.nan, "alpha": math.inf}, "teacher stand-medium-0", 1200)
+    assert str(err.value) == ("teacher stand-medium-0: actor_loss = nan at step 1200; stopped. Lower the learning rate "
+                              "or check the data")
+    with pytest.raises(TrainingDivergedError, match=r"^distill s: alpha = -inf at step 3; stopped \(resume file "
+                                                    r"kept\)\. Lower"):
+        require_finite({"alpha": -math.inf}, "distill s", 3, " (resume file kept)")
