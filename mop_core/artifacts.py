@@ -17,12 +17,14 @@ from mop_core.data import atomic_path
 
 @dataclass(frozen=True)
 class RunPaths:
-    """Where a training run writes: the final checkpoint, its metrics, its curve, and the resume file."""
+    """Where a training run writes: the final checkpoint, its metrics, its curve, the resume file, and
+    its timing record (seconds and machine facts, :mod:`mop_core.timings`; None: not written)."""
 
     checkpoint: Path
     metrics: Path
     curve: Path
     resume: Path
+    timing: Path | None = None
 
 
 def state_sha256(state: dict[str, torch.Tensor]) -> str:

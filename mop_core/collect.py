@@ -15,7 +15,6 @@ TD3 does one gradient step per environment step after ``warmup_steps`` uniformly
 
 from __future__ import annotations
 
-import json
 import math
 import multiprocessing
 import time
@@ -29,7 +28,7 @@ import torch
 from tqdm import tqdm
 
 from mop_core.agents.td3 import TD3, TD3Config, actor_from_checkpoint
-from mop_core.artifacts import package_versions, save_checkpoint, state_sha256, write_curve
+from mop_core.artifacts import save_checkpoint, state_sha256, write_curve
 from mop_core.config import from_mapping, require, to_dict
 from mop_core.data import LEVELS, ReplayBuffer, write_dataset, write_json
 from mop_core.envs import ACT_DIM, OBS_DIM, PHYSICS_DIM, WalkerEnv
@@ -230,8 +229,7 @@ def train_behaviour(task: str, config: CollectConfig, seed: int, device: torch.d
             returns = episode_returns(policy, task, eval_seeds, config.episode_length)
             row = {"step": g, "env_step": t + 1, "return_mean": float(returns.mean()),
                    "return_std": float(returns.std()), "critic_loss": run.last_losses.get("critic_loss", math.nan),
-                   "actor_loss": run.last_losses.get("actor_loss", math.nan),
-                   "seconds": round(seconds_before + time.perf_counter() - started, 1)}
+                   "actor_loss": run.last_losses.get("actor_loss", math.nan)}
             run.record(row, _Snapshot(agent.actor_state(), g, t + 1, row["return_mean"]), sched)
             bar.set_postfix(ret=f"{row['return_mean']:.0f}")
         if (resume is not None and step.timeout and g - saved_at >= sched.checkpoint_every
@@ -284,7 +282,6 @@ def collect_task(task: str, config: CollectConfig, seed: int, paths: CollectPath
     medium, expert, buffer, curve = train_behaviour(task, config, seed, device, progress, position, paths.resume)
     train_seconds = time.perf_counter() - started
     seeds = task_seeds(seed, task)
-    versions = json.dumps(package_versions(), sort_keys=True)
     snapshot_seeds = _eval_seeds(seeds["eval"] + 10_000, config.schedule.snapshot_eval_episodes)
 
     summary: dict = {"task": task, "train_seconds": round(train_seconds, 1), "snapshots": {}, "datasets": {}}
@@ -297,8 +294,7 @@ def collect_task(task: str, config: CollectConfig, seed: int, paths: CollectPath
         returns = episode_returns(policy, task, snapshot_seeds, config.episode_length,
                                   config.datasets.rollout_envs)
         checkpoint |= {"sha256": state_sha256(snap.actor), "return_mean": float(returns.mean()),
-                       "return_std": float(returns.std()), "eval_episodes": len(returns),
-                       "versions": package_versions()}
+                       "return_std": float(returns.std()), "eval_episodes": len(returns)}
         save_checkpoint(paths.checkpoints[level], checkpoint)
         policies[level] = policy
         summary["snapshots"][level] = {k: checkpoint[k] for k in
@@ -326,7 +322,7 @@ def collect_task(task: str, config: CollectConfig, seed: int, paths: CollectPath
         arrays["timeouts"][-1] = True  # medium_replay: the trajectory cut at the snapshot ends here
         behaviour = "expert" if level == "expert" else "medium"
         attrs = {"task": task, "level": level, "seed": seed, "episode_length": config.episode_length,
-                 "behaviour_sha256": summary["snapshots"][behaviour]["sha256"], "versions": versions}
+                 "behaviour_sha256": summary["snapshots"][behaviour]["sha256"]}
         write_dataset(paths.datasets[level], arrays, attrs)
         metrics = _dataset_summary(arrays, config.episode_length, summary["snapshots"][behaviour]["return_mean"])
         write_json(paths.dataset_metrics[level], metrics)
@@ -357,14 +353,19 @@ def collect_tasks(tasks: Sequence[tuple[str, CollectPaths]], config: CollectConf
         return {task: future.result() for task, future in futures.items()}
 
 
-def collect_metrics(summaries: dict[str, dict], stage_seconds: float) -> dict:
-    """The collect stage's metrics: snapshot returns, R_random of the normalised score, times per task."""
+def collect_metrics(summaries: dict[str, dict]) -> dict:
+    """The collect stage's metrics: snapshot returns and R_random of the normalised score, per task
+    (the times are in the stage's timing record: :func:`collect_timing`)."""
     metrics = {task: {"medium_return": s["snapshots"]["medium"]["return_mean"],
                       "expert_return": s["snapshots"]["expert"]["return_mean"],
                       "medium_gradient_steps": s["snapshots"]["medium"]["gradient_steps"],
                       "expert_gradient_steps": s["snapshots"]["expert"]["gradient_steps"],
                       "random_return": s["random"]["return_mean"], "random_return_std": s["random"]["return_std"],
-                      "random_episodes": s["random"]["episodes"],
-                      "seconds": s["total_seconds"]} for task, s in summaries.items()}
-    metrics["stage_seconds"] = round(stage_seconds, 1)
+                      "random_episodes": s["random"]["episodes"]} for task, s in summaries.items()}
     return metrics
+
+
+def collect_timing(summaries: dict[str, dict]) -> dict:
+    """Per task: seconds of TD3 training and of the whole task (snapshots, datasets included)."""
+    return {task: {"train_seconds": s["train_seconds"], "seconds": s["total_seconds"]}
+            for task, s in summaries.items()}

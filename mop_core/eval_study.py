@@ -29,6 +29,7 @@ from mop_core.runs import cross_group, is_cross_group, teacher_group
 from mop_core.runtime import derive_seeds
 from mop_core.statistics import improvement_summary, iqm_summary, normalised_score, ratio_to_teacher, summarise_group
 from mop_core.tasks import get_task
+from mop_core.timings import per_second, write_timing
 
 AGGREGATE_NOTE = ("IQM: interquartile mean of normalised scores pooled over tasks; probability of improvement "
                   "P(X > Y): per task the share of (x, y) score pairs with x > y (ties 1/2), averaged over tasks; "
@@ -144,11 +145,15 @@ def eval_metrics(evaluation: StudyEvaluation, catalogue: Catalogue, config: Eval
     metrics["normalisation"] = norms
     metrics["aggregate"] = aggregates(evaluation.scores, catalogue, config)
     metrics["cross_task"] = cross_task_table(summary, catalogue)
-    metrics["eval"] = {"seconds": round(evaluation.seconds, 1), "jobs": evaluation.jobs,
-                       "episodes_per_job": config.episodes,
-                       "gaussian_student_action": config.gaussian_student_action,
-                       "env_steps_per_second": round(evaluation.env_steps / max(evaluation.seconds, 1e-9), 1)}
+    metrics["eval"] = {"jobs": evaluation.jobs, "episodes_per_job": config.episodes,
+                       "gaussian_student_action": config.gaussian_student_action}
     return metrics
+
+
+def write_eval_timing(path: Path, evaluation: StudyEvaluation) -> dict:
+    """The eval stage's timing record: rollout seconds and environment steps per second."""
+    return write_timing(path, evaluation.seconds, jobs=evaluation.jobs, env_steps=evaluation.env_steps,
+                        env_steps_per_second=per_second(evaluation.env_steps, evaluation.seconds))
 
 
 TSV_HEADER = ("task\tgroup\tlabel\treturn_mean\tci_low\tci_high\tn\tci_unit\tnormalised_mean\tnormalised_ci_low\t"
@@ -186,7 +191,7 @@ def write_eval_outputs(out: Path, evaluation: StudyEvaluation, metrics: dict, ca
     return plotted
 
 
-def print_summary(plotted: dict, metrics: dict) -> None:
+def print_summary(plotted: dict, metrics: dict, timing: dict) -> None:
     for task, groups in plotted.items():
         for group, s in groups.items():
             print(f"{task:6s} {group:32s} {s['mean']:7.1f}  [{s['ci_low']:.1f}, {s['ci_high']:.1f}]  "
@@ -194,5 +199,5 @@ def print_summary(plotted: dict, metrics: dict) -> None:
     for name, entry in metrics["aggregate"]["probability_of_improvement"].items():
         print(f"P({name.replace('_vs_', ' > ')}) = {entry['value']:.2f} "
               f"[{entry['ci_low']:.2f}, {entry['ci_high']:.2f}]")
-    e = metrics["eval"]
-    print(f"eval: {e['jobs']} jobs in {e['seconds']:.0f} s ({e['env_steps_per_second']:.0f} env steps/s)")
+    print(f"eval: {timing['jobs']} jobs in {timing['seconds']:.0f} s ({timing['env_steps_per_second']:.0f} "
+          "env steps/s)")

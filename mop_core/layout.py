@@ -3,7 +3,8 @@
 - ``data/``: DVC-cached artefacts: behaviour snapshots, datasets, relabelled rewards, checkpoints;
   ``data/resume/`` holds resume files (not outputs: ``dvc repro`` deletes a stage's outputs before
   it runs, and a resume file must survive that);
-- ``results/``: what a person reads: metrics JSON, learning-curve TSVs, figures, the report.
+- ``results/``: what a person reads: metrics JSON, learning-curve TSVs, figures, the report;
+  ``results/metrics.json`` holds the headline numbers and ``results/timings/`` every run's seconds.
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ from mop_core.data.hdf5 import LEVELS
 DATA = Path("data")
 RESULTS = Path("results")
 COLLECT_METRICS = RESULTS / "collect" / "metrics.json"
+TIMINGS = RESULTS / "timings"
+HEADLINE_METRICS = RESULTS / "metrics.json"
 
 
 @dataclass(frozen=True)
@@ -58,9 +61,20 @@ def collect_paths(task: str) -> CollectPaths:
 
 
 def run_paths(name: str, family: str) -> RunPaths:
-    """A training run's final checkpoint (DVC output), metrics and curve (results/) and resume file."""
+    """A training run's final checkpoint (DVC output), metrics and curve (results/), resume file and timing."""
     return RunPaths(checkpoint=DATA / family / f"{name}.pt", metrics=RESULTS / family / "metrics" / f"{name}.json",
-                    curve=RESULTS / family / "curves" / f"{name}.tsv", resume=DATA / "resume" / f"{family}-{name}.pt")
+                    curve=RESULTS / family / "curves" / f"{name}.tsv", resume=DATA / "resume" / f"{family}-{name}.pt",
+                    timing=timing_file(family, name))
+
+
+def timing_file(stage: str, name: str | None = None) -> Path:
+    """results/timings/<stage>.json, or results/timings/<family>/<run>.json for one run of a matrix stage."""
+    return TIMINGS / stage / f"{name}.json" if name is not None else TIMINGS / f"{stage}.json"
+
+
+def tau_curves_dir(name: str) -> Path:
+    """results/students/tau/<student>/: per_state_tau_<a|b>_layer<k>.tsv (step, tau), one curve each."""
+    return RESULTS / "students" / "tau" / name
 
 
 def student_inputs_file(name: str) -> Path:

@@ -1,10 +1,11 @@
 """One loader for every policy checkpoint of a study: ``load_policy(path) -> Policy``.
 
-Every checkpoint the stages write carries ``kind`` (what wrote it) and ``versions`` (the packages
-it was written with). :func:`load_policy` reads the kind and rebuilds the acting network the same
-way for all of them; a Policy maps observations ``[K, 24]`` to actions ``[K, 6]`` (float64), as the
-rollouts (:mod:`mop_core.rollout`) step them. Gaussian actors act by their mean unless a student is
-given a ``sample_seed``.
+Every checkpoint the stages write carries ``kind`` (what wrote it); the package versions it was
+written with are in the run's timing record (results/timings/), not in the checkpoint, so that the
+same weights are the same bytes on any machine. :func:`load_policy` reads the kind and rebuilds the
+acting network the same way for all of them; a Policy maps observations ``[K, 24]`` to actions
+``[K, 6]`` (float64), as the rollouts (:mod:`mop_core.rollout`) step them. Gaussian actors act by
+their mean unless a student is given a ``sample_seed``.
 """
 
 from __future__ import annotations

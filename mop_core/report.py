@@ -190,9 +190,8 @@ def header(results: StudyResults) -> str:
              "are listed beside it), or over the means of >= 3 training seeds. Aggregates (section 6) are "
              "stratified-bootstrap intervals over runs x episodes. Learning-curve bands are over training seeds "
              "and drawn only with >= 3 seeds.", ""]
-    timing = s.get("timing")
-    if timing:
-        lines += ["Stage times (s): " + ", ".join(f"{k} {fmt(v, 0)}" for k, v in timing.items()), ""]
+    lines += ["Stage times are in results/timings/ (`python -m mop_core.timings` prints the table), not here: "
+              "a rerun that reproduces the results leaves this report unchanged.", ""]
     return "\n".join(lines)
 
 
@@ -534,25 +533,14 @@ def load_run(run, key: dict) -> Run | None:
 
 
 def settings(params: Mapping[str, Any], results: StudyResults) -> dict:
-    """The header's budgets (the params' values) and the stage times the runs recorded."""
+    """The header's budgets (the params' values)."""
     collect, teachers = params["collect"]["schedule"], params["train_teachers"]
     distill, evaluation = params["distill"], params["eval"]
     summary = (f"collect {collect['total_steps']} TD3 gradient steps per task (medium at {collect['medium_step']}); "
                f"PBRL teachers {teachers['schedule']['steps']} steps, seeds {teachers['seeds']}; students "
                f"{distill['schedule']['steps']} steps, seeds {distill['seeds']}; eval {evaluation['episodes']} "
                "episodes per policy and task")
-    timing = {}
-    if results.collect:
-        timing["collect"] = results.collect.get("stage_seconds")
-    for label, runs in (("train_teachers", results.teachers), ("train_multitask", results.multitask),
-                        ("distill", results.students)):
-        if runs:
-            timing[label] = sum(r.metrics.get("train_seconds", 0.0) for r in runs)
-    if results.evaluation:
-        timing["eval"] = results.evaluation.get("eval", {}).get("seconds")
-    if results.shared:
-        timing["shared_computation"] = results.shared.get("seconds")
-    return {"summary": summary, "timing": {k: v for k, v in timing.items() if v is not None},
+    return {"summary": summary,
             "teacher_seed": distill["teacher_seed"], "snapshot_eval_episodes": collect.get("snapshot_eval_episodes")}
 
 

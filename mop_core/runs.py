@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from mop_core.artifacts import RunPaths
-from mop_core.layout import behaviour_checkpoint, dataset_file, relabel_file, run_paths
+from mop_core.layout import behaviour_checkpoint, dataset_file, relabel_file, run_paths, tau_curves_dir
 
 BEHAVIOUR_LEVELS = ("medium", "expert")  # the collect stage's snapshots
 
@@ -140,6 +140,11 @@ class StudentRun:
     @property
     def paths(self) -> RunPaths:
         return run_paths(self.name, self.family)
+
+    @property
+    def tau_dir(self) -> Path:
+        """results/students/tau/<name>/: one ``dvc plots`` curve per logged per-state tau."""
+        return tau_curves_dir(self.name)
 
     @property
     def tasks(self) -> tuple[str, ...]:

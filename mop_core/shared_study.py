@@ -35,9 +35,10 @@ def compact(record: dict) -> dict:
 
 
 def measure_catalogue(catalogue: Catalogue, config: SharedComputationConfig, threads: int, episode_length: int,
-                      out: Path, progress: bool = False) -> dict:
+                      out: Path, progress: bool = False) -> tuple[dict, dict]:
     """Measure every student; write out/students/<name>.json and out/figures/<name>.png; return the
-    metrics record (Table 6.1 per group: mean over its seeds, and per student)."""
+    metrics record (Table 6.1 per group: mean over its seeds, and per student) and the seconds taken
+    (``seconds``, ``rollout_seconds``: the stage's timing record)."""
     groups = {structure_group(members[0].loss, members[0].pairing): members
               for members in catalogue.student_groups().values()}
     runs = [run for members in groups.values() for run in members]
@@ -68,10 +69,10 @@ def measure_catalogue(catalogue: Catalogue, config: SharedComputationConfig, thr
                            f"{run.name}: mean activation per neuron over {config.episodes} episodes per task")
     seconds = time.perf_counter() - started
     return {"note": TIES_NOTE, "episodes_per_task": config.episodes,
-            "seconds": round(seconds, 1), "rollout_seconds": round(rollout_seconds, 1),
             "groups": {group: summarise_students([records[run.name] for run in members])
                        | {"untrained": untrained[group]} for group, members in groups.items()},
-            "students": {name: compact(record) for name, record in records.items()}}
+            "students": {name: compact(record) for name, record in records.items()}}, {
+        "seconds": seconds, "rollout_seconds": round(rollout_seconds, 1), "students": len(runs)}
 
 
 def tau_during_training_figure(catalogue: Catalogue, path: Path) -> None:
@@ -92,7 +93,7 @@ def tau_during_training_figure(catalogue: Catalogue, path: Path) -> None:
                       "per-state Kendall tau", "no per-state tau was logged during distillation")
 
 
-def print_summary(metrics: dict) -> None:
+def print_summary(metrics: dict, timing: dict) -> None:
     for group, summary in metrics["groups"].items():
         for pair, layers in summary["pairs"].items():
             for layer, row in layers.items():
@@ -101,5 +102,5 @@ def print_summary(metrics: dict) -> None:
                       f"{row['per_state_tau_b_mean']:.3f}  average tau-a/b {row['average_tau_a']:.3f}/"
                       f"{row['average_tau_b']:.3f}  linear CKA {row['linear_cka']:.3f}  ({summary['students']} "
                       f"students; untrained tau-b: {ref['per_state_tau_b']['mean']:.3f}, {ref['average_tau_b']:.3f})")
-    print(f"shared_computation: {len(metrics['students'])} students in {metrics['seconds']:.0f} s "
-          f"(rollouts {metrics['rollout_seconds']:.0f} s)")
+    print(f"shared_computation: {len(metrics['students'])} students in {timing['seconds']:.0f} s "
+          f"(rollouts {timing['rollout_seconds']:.0f} s)")

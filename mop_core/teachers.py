@@ -127,16 +127,15 @@ def train_teacher(task: str, source: DataSource, config: TeacherConfig, seed: in
     metrics = {"task": task, "level": level, "seed": seed, "return_mean": float(final.mean()),
                "return_std": float(final.std()), "eval_episodes": len(final),
                "dataset_return_mean": summary["return_mean"],
-               "return_ratio": float(final.mean() / summary["return_mean"]), "gradient_steps": sched.steps,
-               "train_seconds": round(seconds, 1), "updates_per_second": round(sched.steps / max(seconds, 1e-9), 1),
-               "resumed_from_step": resumed_from}
+               "return_ratio": float(final.mean() / summary["return_mean"]), "gradient_steps": sched.steps}
     actor_state = {k: v.cpu() for k, v in agent.actor.state_dict().items()}
     return finish_run(paths, {
         "kind": TEACHER_KIND, "task": task, "level": level, "seed": seed, "study_seed": study_seed,
         "pbrl_config": to_dict(config.pbrl), "episode_length": config.episode_length,
         "obs_dim": OBS_DIM, "act_dim": ACT_DIM, "actor": actor_state,
         "critic": {k: v.cpu() for k, v in agent.critic.critic.state_dict().items()},
-        "actor_sha256": state_sha256(actor_state), "dataset": summary, "metrics": metrics}, curve, metrics)
+        "actor_sha256": state_sha256(actor_state), "dataset": summary, "metrics": metrics}, curve, metrics,
+        seconds, sched.steps, resumed_from, device)
 
 
 def train_multitask(tasks: Sequence[str], sources: Sequence[DataSource], config: TeacherConfig, seed: int,
@@ -185,8 +184,7 @@ def train_multitask(tasks: Sequence[str], sources: Sequence[DataSource], config:
     curve, seconds, resumed_from = train_loop(agent, update, evaluate, sched, seeds, sampler, paths, fingerprint,
                                               f"multitask {level}-{seed}", progress)
     final_seeds = [seeds["final_eval"] + i for i in range(sched.final_eval_episodes)]
-    metrics: dict = {"tasks": list(tasks), "level": level, "seed": seed, "gradient_steps_per_task": sched.steps,
-                     "train_seconds": round(seconds, 1), "resumed_from_step": resumed_from}
+    metrics: dict = {"tasks": list(tasks), "level": level, "seed": seed, "gradient_steps_per_task": sched.steps}
     for i, (task, (_, summary)) in enumerate(zip(tasks, loaded)):
         final = episode_returns(policies[i], task, final_seeds, config.episode_length, sched.rollout_envs)
         metrics[task] = {"return_mean": float(final.mean()), "return_std": float(final.std()),
@@ -198,7 +196,7 @@ def train_multitask(tasks: Sequence[str], sources: Sequence[DataSource], config:
         "act_dim": ACT_DIM, "actor": actor_state,
         "critics": [{k: v.cpu() for k, v in c.critic.state_dict().items()} for c in agent.critics],
         "actor_sha256": state_sha256(actor_state), "datasets": [s for _, s in loaded], "metrics": metrics},
-        curve, metrics)
+        curve, metrics, seconds, sched.steps, resumed_from, device)
 
 
 @dataclass

@@ -20,10 +20,11 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from mop_core.artifacts import RunPaths, load_checkpoint, package_versions, save_checkpoint, write_curve
+from mop_core.artifacts import RunPaths, load_checkpoint, save_checkpoint, write_curve
 from mop_core.data.hdf5 import write_json
 from mop_core.runtime import TrainingDivergedError, require_finite
 from mop_core.schedule import TrainSchedule
+from mop_core.timings import per_second, write_timing
 
 RESUME_KIND = "training_resume"
 
@@ -94,7 +95,6 @@ def train_loop(agent, update: Callable[[], dict], evaluate: Callable[[list[int]]
         if step % schedule.eval_every == 0 or step == schedule.steps:
             row = {"step": step, **evaluate(eval_seeds)}
             row |= {key: float(np.mean(values)) for key, values in sorted(losses.items())}
-            row["seconds"] = round(seconds_before + time.perf_counter() - started, 1)
             curve.append(row)
             losses = {}
             bar.set_postfix(ret=f"{row['return_mean']:.0f}")
@@ -111,14 +111,21 @@ def train_loop(agent, update: Callable[[], dict], evaluate: Callable[[list[int]]
     return curve, seconds_before + time.perf_counter() - started, resumed_from
 
 
-def finish_run(paths: RunPaths, checkpoint: dict, curve: list[dict], metrics: dict) -> dict:
+def finish_run(paths: RunPaths, checkpoint: dict, curve: list[dict], metrics: dict, seconds: float, steps: int,
+               resumed_from: int, device: torch.device | str) -> dict:
     """The end of every offline training run (teachers, the multi-task baseline, students): the final
-    checkpoint (its ``kind`` and fields, plus the package ``versions``), the learning curve, the
-    metrics record, and the resume file dropped last (a crash before this point resumes, after it
-    the run is complete). Returns ``metrics``."""
-    save_checkpoint(paths.checkpoint, checkpoint | {"versions": package_versions()})
+    checkpoint, the learning curve, the metrics record, the timing record (``seconds`` for ``steps``
+    updates, the step it resumed from, the machine: :mod:`mop_core.timings`), and the resume file
+    dropped last (a crash before this point resumes, after it the run is complete). Returns ``metrics``.
+
+    The checkpoint, curve and metrics hold only what the run computed, never a time or a package
+    version, so a rerun with the same weights writes the same bytes and leaves later stages clean."""
+    save_checkpoint(paths.checkpoint, checkpoint)
     write_curve(paths.curve, curve)
     write_json(paths.metrics, metrics)
+    if paths.timing is not None:
+        write_timing(paths.timing, seconds, device, steps=steps, steps_per_second=per_second(steps, seconds),
+                     resumed_from_step=resumed_from)
     paths.resume.unlink(missing_ok=True)
     return metrics
 

@@ -35,7 +35,7 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 PROJECT = ["dvc.yaml", "stages", "mop_core", "profiles", "pyproject.toml", ".dvc/config", ".dvc/.gitignore",
-           ".dvcignore"]
+           ".gitignore", ".dvcignore"]
 STAGE = {
     "params": ["stages/check_params.py"],
     "collect": ["stages/collect.py"],

@@ -5,8 +5,8 @@
 All tasks run in parallel, one single-threaded process per task (``collect.parallel``).
 Outputs: data/behaviour/<task>/{medium,expert}.pt, data/datasets/<task>-<level>.hdf5,
 results/collect/datasets/<task>-<level>.json (dvc metrics), results/collect/curves/<task>.tsv
-(dvc plots) and results/collect/metrics.json (snapshot returns, the uniformly random policy's return
-R_random of the normalised scores, and times per task).
+(dvc plots), results/collect/metrics.json (snapshot returns, the uniformly random policy's return
+R_random of the normalised scores) and results/timings/collect.json (seconds per task, the machine).
 """
 
 from __future__ import annotations
@@ -15,11 +15,12 @@ import time
 
 from common import load_params, run_stage
 
-from mop_core.collect import collect_configs, collect_metrics, collect_tasks
+from mop_core.collect import collect_configs, collect_metrics, collect_tasks, collect_timing
 from mop_core.data import write_json
-from mop_core.layout import COLLECT_METRICS, collect_paths
+from mop_core.layout import COLLECT_METRICS, collect_paths, timing_file
 from mop_core.runtime import progress_enabled, resolve_device
 from mop_core.study import study_config
+from mop_core.timings import write_timing
 
 
 def main() -> None:
@@ -30,7 +31,9 @@ def main() -> None:
     started = time.perf_counter()
     summaries = collect_tasks([(task, collect_paths(task)) for task in study.tasks], config, study.seed,
                               device, progress_enabled(study.progress), parallel.workers, parallel.threads_per_worker)
-    write_json(COLLECT_METRICS, collect_metrics(summaries, time.perf_counter() - started))
+    write_json(COLLECT_METRICS, collect_metrics(summaries))
+    write_timing(timing_file("collect"), time.perf_counter() - started, device, tasks=collect_timing(summaries),
+                 workers=parallel.workers, threads_per_worker=parallel.threads_per_worker)
     for task, s in summaries.items():
         print(f"{task}: medium {s['snapshots']['medium']['return_mean']:.1f} "
               f"expert {s['snapshots']['expert']['return_mean']:.1f} random {s['random']['return_mean']:.1f} "

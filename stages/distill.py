@@ -6,7 +6,8 @@ Reads the teachers the catalogue names for the student (per study task: the pair
 loss's actor type, seed ``distill.teacher_seed``) and, for offline states, the datasets they were
 trained on, after checking them against data/student_inputs/<name>.json (the student_inputs stage's
 record, this entry's only data dependency in dvc.yaml). Writes data/students/<loss>-<pairing>-<seed>.pt, the metrics
-results/students/metrics/<name>.json and the learning curve results/students/curves/<name>.tsv.
+results/students/metrics/<name>.json, the learning curve results/students/curves/<name>.tsv, one curve
+per logged per-state tau in results/students/tau/<name>/ and the timing results/timings/students/<name>.json.
 """
 
 from __future__ import annotations
@@ -17,10 +18,12 @@ from common import load_params, require_inputs, run_stage
 
 from mop_core.catalogue import LOSS_ACTORS, make_student
 from mop_core.config import ConfigError, keys_under, require
+from mop_core.data import read_json
 from mop_core.distill.distiller import distill_config
 from mop_core.distill.losses import LOSSES
-from mop_core.distill.run import StudentSources, check_student_files, distill_student, print_summary
+from mop_core.distill.run import StudentSources, check_student_files, distill_student, print_summary, write_tau_curves
 from mop_core.layout import student_inputs_file
+from mop_core.plots import read_curve
 from mop_core.runtime import progress_enabled, resolve_device, set_threads
 from mop_core.study import distill_grid, pairing_levels, study_config
 from mop_core.teachers import teacher_config
@@ -54,7 +57,8 @@ def main() -> None:
         metrics = distill_student(sources, config, grid.schedule, study.episode_length,
                                   args.seed, study.seed, run.paths, device, progress_enabled(study.progress),
                                   run.name)
-    print_summary(run.name, metrics)
+    write_tau_curves(run.tau_dir, read_curve(run.paths.curve))
+    print_summary(run.name, metrics, read_json(run.paths.timing))
 
 
 if __name__ == "__main__":

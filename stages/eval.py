@@ -19,9 +19,16 @@ from __future__ import annotations
 from common import load_params, require_inputs, run_stage
 
 from mop_core.catalogue import build_catalogue
-from mop_core.eval_study import eval_metrics, evaluate_study, normalisers, print_summary, write_eval_outputs
+from mop_core.eval_study import (
+    eval_metrics,
+    evaluate_study,
+    normalisers,
+    print_summary,
+    write_eval_outputs,
+    write_eval_timing,
+)
 from mop_core.evaluation import EvalConfig
-from mop_core.layout import COLLECT_METRICS, stage_dir
+from mop_core.layout import COLLECT_METRICS, stage_dir, timing_file
 from mop_core.runtime import progress_enabled
 from mop_core.study import study_config, typed_section
 
@@ -37,7 +44,7 @@ def main() -> None:
     evaluation = evaluate_study(catalogue, config, study.episode_length, norms, progress_enabled(study.progress))
     metrics = eval_metrics(evaluation, catalogue, config, norms)
     plotted = write_eval_outputs(stage_dir("eval"), evaluation, metrics, catalogue, config)
-    print_summary(plotted, metrics)
+    print_summary(plotted, metrics, write_eval_timing(timing_file("eval"), evaluation))
 
 
 if __name__ == "__main__":

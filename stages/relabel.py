@@ -15,10 +15,11 @@ from common import load_params, run_stage
 
 from mop_core.config import ConfigError
 from mop_core.data import write_json
-from mop_core.layout import dataset_file, relabel_file, stage_dir
+from mop_core.layout import dataset_file, relabel_file, stage_dir, timing_file
 from mop_core.relabel import RelabelConfig, relabel_dataset
 from mop_core.runtime import set_threads
 from mop_core.study import study_config, typed_section
+from mop_core.timings import per_second, write_timing
 
 
 def main() -> None:
@@ -35,9 +36,12 @@ def main() -> None:
     for task, level in sources:
         metrics[f"{task}-{level}"] = relabel_dataset(dataset_file(task, level), relabel_file(task, level),
                                                      study.tasks, config, source_task=task, level=level)
-    metrics["stage_seconds"] = round(time.perf_counter() - started, 1)
     write_json(stage_dir("relabel") / "metrics.json", metrics)
-    print(f"relabelled {len(sources)} datasets under {len(study.tasks)} tasks in {metrics['stage_seconds']} s")
+    seconds = time.perf_counter() - started
+    relabelled = sum(m["transitions"] for m in metrics.values()) * len(study.tasks)
+    timing = write_timing(timing_file("relabel"), seconds, datasets=len(sources),
+                          rewards_per_second=per_second(relabelled, seconds))
+    print(f"relabelled {len(sources)} datasets under {len(study.tasks)} tasks in {timing['seconds']} s")
 
 
 if __name__ == "__main__":

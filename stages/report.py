@@ -4,7 +4,8 @@
 
 Reads only what the other stages wrote under results/ (metrics JSON, learning-curve TSVs, figures)
 for the runs of the study's catalogue; a missing file means that part of the study was not run, and
-its section says so. Writes results/report.md and results/report/*.png.
+its section says so. Writes results/report.md, results/report/*.png and results/metrics.json (the
+headline numbers: mop_core/headline.py).
 """
 
 from __future__ import annotations
@@ -12,8 +13,9 @@ from __future__ import annotations
 from common import load_params, run_stage
 
 from mop_core.catalogue import build_catalogue
-from mop_core.data import atomic_path
-from mop_core.layout import RESULTS
+from mop_core.data import atomic_path, write_json
+from mop_core.headline import headline_metrics
+from mop_core.layout import HEADLINE_METRICS, RESULTS
 from mop_core.report import load_results, render_report
 
 REPORT = RESULTS / "report.md"
@@ -26,6 +28,7 @@ def main() -> None:
     markdown = render_report(results, FIGURES, FIGURES.relative_to(RESULTS).as_posix() + "/")
     with atomic_path(REPORT) as tmp:
         tmp.write_text(markdown)
+    write_json(HEADLINE_METRICS, headline_metrics(results.evaluation, results.shared, results.tasks))
     print(f"report: wrote {REPORT} ({len(markdown.splitlines())} lines) and {FIGURES}/")
 
 

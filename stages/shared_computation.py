@@ -22,11 +22,12 @@ from common import load_params, require_inputs, run_stage
 from mop_core.catalogue import build_catalogue
 from mop_core.config import require
 from mop_core.data import write_json
-from mop_core.layout import stage_dir
+from mop_core.layout import stage_dir, timing_file
 from mop_core.runtime import progress_enabled
 from mop_core.shared_computation import shared_computation_config
 from mop_core.shared_study import measure_catalogue, print_summary, tau_during_training_figure
 from mop_core.study import study_config
+from mop_core.timings import write_timing
 
 
 def main() -> None:
@@ -37,11 +38,11 @@ def main() -> None:
     catalogue = build_catalogue(params)
     require_inputs([f for run in catalogue.students for f in (run.paths.checkpoint, run.paths.curve,
                                                               run.paths.metrics)], "distill")
-    metrics = measure_catalogue(catalogue, config, threads, study.episode_length, out,
-                                progress_enabled(study.progress))
+    metrics, seconds = measure_catalogue(catalogue, config, threads, study.episode_length, out,
+                                         progress_enabled(study.progress))
     write_json(out / "metrics.json", metrics)
     tau_during_training_figure(catalogue, out / "tau_during_training.png")
-    print_summary(metrics)
+    print_summary(metrics, write_timing(timing_file("shared_computation"), **seconds))
 
 
 if __name__ == "__main__":

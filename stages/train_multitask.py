@@ -15,6 +15,7 @@ import argparse
 from common import check_level_and_seed, load_params, require_inputs, run_stage
 
 from mop_core.config import ConfigError, keys_under
+from mop_core.data import read_json
 from mop_core.layout import dataset_file, relabel_file
 from mop_core.runs import MultitaskRun
 from mop_core.runtime import progress_enabled, resolve_device, set_threads
@@ -48,7 +49,7 @@ def main() -> None:
         m = metrics[task]
         print(f"multitask {run.name} on {task}: return {m['return_mean']:.1f} +- {m['return_std']:.1f} "
               f"(dataset {m['dataset_return_mean']:.1f})")
-    print(f"trained in {metrics['train_seconds']:.0f} s")
+    print(f"trained in {read_json(run.paths.timing)['seconds']:.0f} s")
 
 
 if __name__ == "__main__":

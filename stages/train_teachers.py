@@ -16,6 +16,7 @@ from common import check_level_and_seed, load_params, require_inputs, run_stage
 
 from mop_core.agents.pbrl import ACTOR_TYPES
 from mop_core.config import ConfigError, keys_under
+from mop_core.data import read_json
 from mop_core.runs import TeacherRun
 from mop_core.runtime import progress_enabled, resolve_device, set_threads
 from mop_core.study import study_config, teacher_grid
@@ -45,9 +46,10 @@ def main() -> None:
     with keys_under("train_teachers"):  # sizes checked against the data: train_teachers.pbrl.batch_size
         metrics = train_teacher(run.task, source, config, run.seed, study.seed, run.paths,
                                 device, progress_enabled(study.progress))
+    timing = read_json(run.paths.timing)
     print(f"{run.name}: return {metrics['return_mean']:.1f} +- {metrics['return_std']:.1f} "
           f"(dataset {metrics['dataset_return_mean']:.1f}, ratio {metrics['return_ratio']:.2f}) "
-          f"in {metrics['train_seconds']:.0f} s, {metrics['updates_per_second']:.0f} updates/s")
+          f"in {timing['seconds']:.0f} s, {timing['steps_per_second']:.0f} updates/s")
 
 
 if __name__ == "__main__":

@@ -174,11 +174,7 @@ def test_an_interrupted_behaviour_run_resumes_to_the_same_snapshots_datasets_and
     for level in LEVELS:  # checkpoint_every changes nothing but when resume files are written
         name = f"stand-{level}.hdf5"
         assert (tmp_path / "datasets" / name).read_bytes() == (root / "datasets" / name).read_bytes()
-    for level in ("medium", "expert"):
-        resumed = torch.load(tmp_path / "behaviour" / "stand" / f"{level}.pt", weights_only=False)
-        first = torch.load(root / "behaviour" / "stand" / f"{level}.pt", weights_only=False)
-        assert resumed["sha256"] == first["sha256"] and resumed["return_mean"] == first["return_mean"]
-
-    def without_seconds(path):
-        return [line.rsplit("\t", 1)[0] for line in path.read_text().splitlines()]
-    assert without_seconds(tmp_path / "curves" / "stand.tsv") == without_seconds(root / "curves" / "stand.tsv")
+    for level in ("medium", "expert"):  # no time or version inside: the same weights are the same bytes
+        resumed = (tmp_path / "behaviour" / "stand" / f"{level}.pt").read_bytes()
+        assert resumed == (root / "behaviour" / "stand" / f"{level}.pt").read_bytes()
+    assert (tmp_path / "curves" / "stand.tsv").read_bytes() == (root / "curves" / "stand.tsv").read_bytes()

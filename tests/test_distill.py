@@ -220,7 +220,8 @@ SCHEDULE = TrainSchedule(steps=20, eval_every=10, eval_episodes=1, final_eval_ep
 
 
 def _paths(root) -> RunPaths:
-    return RunPaths(root / "student.pt", root / "metrics.json", root / "curve.tsv", root / "resume.pt")
+    return RunPaths(root / "student.pt", root / "metrics.json", root / "curve.tsv", root / "resume.pt",
+                    root / "timing.json")
 
 
 def _sources(tiny_teachers, actor: str) -> StudentSources:
@@ -358,8 +359,8 @@ def test_interrupted_distillation_resumes_to_the_same_student(tiny_teachers, tmp
         distill_student(sources, config, SCHEDULE, 50, 0, 0, _paths(tmp_path / "b"))
     assert (tmp_path / "b" / "resume.pt").exists() and not (tmp_path / "b" / "student.pt").exists()
     monkeypatch.setattr(Distiller, "update", original)
-    metrics = distill_student(sources, config, SCHEDULE, 50, 0, 0, _paths(tmp_path / "b"))
-    assert metrics["resumed_from_step"] == 10
+    distill_student(sources, config, SCHEDULE, 50, 0, 0, _paths(tmp_path / "b"))
+    assert json.loads((tmp_path / "b" / "timing.json").read_text())["resumed_from_step"] == 10
     a = load_student(tmp_path / "a" / "student.pt").student.state_dict()
     b = load_student(tmp_path / "b" / "student.pt").student.state_dict()
     assert all(torch.equal(a[k], b[k]) for k in a)

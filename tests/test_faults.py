@@ -180,7 +180,7 @@ def _train(agent: Counter, tmp_path: Path, steps: int = 10, eval_every: int = 5,
     paths = RunPaths(*(tmp_path / name for name in ("final.pt", "metrics.json", "curve.tsv", "resume.pt")))
     curve, _, resumed = train_loop(agent, agent.update, lambda seeds: {"return_mean": 0.0}, schedule, {"eval": 0},
                                    torch.Generator().manual_seed(0), paths, "fingerprint", "toy run", False)
-    return [{k: v for k, v in row.items() if k != "seconds"} for row in curve], resumed, paths
+    return curve, resumed, paths
 
 
 def test_a_nan_loss_stops_the_run_naming_it_and_keeps_the_last_good_resume_file(tmp_path):

@@ -6,6 +6,7 @@ import io
 import json
 import os
 import re
+import shlex
 import shutil
 import subprocess
 import sys
@@ -54,13 +55,7 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
         assert (repo / "data" / "students" / f"{loss}-medium-0.pt").is_file()
         assert (repo / "results" / "students" / "curves" / f"{loss}-medium-0.tsv").is_file()
     assert not list((repo / "data" / "resume").glob("*"))  # finished runs leave no resume files
-    shown = json.loads(_run(["dvc", "metrics", "show", "--json"], repo).stdout)
-    text = json.dumps(shown)
-    assert "expert_return" in text and "max_abs_diff_vs_stored" in text
-    assert "dataset_return_mean" in text and "gradient_steps_per_task" in text
-    assert "student_to_teacher" in text
     evaluation = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
-    assert evaluation == shown[""]["data"]["results/eval/metrics.json"]["data"]  # dvc reads what eval wrote
     for task in ("stand", "walk"):
         for group in ("behaviour_expert", "teacher_medium_deterministic", "multitask_medium", "student_mse_medium",
                       "student_kl_medium"):
@@ -84,11 +79,7 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
     stages = _run(["dvc", "stage", "list"], repo).stdout
     assert "train_teachers@stand-medium-gaussian-0" in stages and "train_multitask@medium-0" in stages
     assert "distill@kl-medium-0" in stages and "eval" in stages
-    plots = _run(["dvc", "plots", "show", "--json"], repo).stdout
-    assert "results/eval/returns.tsv" in plots and "results/students/curves" in plots
-    assert "per_state_tau" in plots
     shared = json.loads((repo / "results" / "shared_computation" / "metrics.json").read_text())
-    assert shared["groups"] == shown[""]["data"]["results/shared_computation/metrics.json"]["data"]["groups"]
     for group in ("mse_medium", "q_medium", "kl_medium"):
         layers = shared["groups"][group]["pairs"]["stand-walk"]
         assert list(layers) == ["layer1", "layer2"]
@@ -97,6 +88,8 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
     curve = (repo / "results" / "students" / "curves" / "mse-medium-0.tsv").read_text().splitlines()
     assert {"per_state_tau_a_layer1", "per_state_tau_b_layer2"} <= set(curve[0].split("\t"))
     _check_report(repo)
+    timing = json.loads((repo / "results" / "timings" / "students" / "mse-medium-0.json").read_text())
+    assert timing["seconds"] > 0 and timing["steps_per_second"] > 0 and "torch==" in timing["versions"]
     status = _run(["dvc", "status"], repo).stdout
     assert "up to date" in status.lower()
     # the .gitignore DVC keeps next to file outputs is not data: rewriting it (as a checkout elsewhere
@@ -108,6 +101,93 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
         assert "up to date" in _run(["dvc", "status"], repo).stdout.lower()
     finally:
         gitignore.write_text(original)
+
+
+# The README's DVC one-liners, run verbatim below (test_the_readme_shows_the_tested_commands keeps them in sync).
+HEADLINE_SHOW = "dvc metrics show results/metrics.json"
+TIMINGS_SHOW = "dvc metrics show results/timings"
+HEADLINE_DIFF = "dvc metrics diff --targets results/metrics.json"
+EXP_SHOW = (r"dvc exp show --drop '.*' --keep "
+            r"'Experiment|distill\.(learning_rate|lr_schedule)|normalised_return|per_state_tau_a'")
+RUN_CACHE_PUSH = "dvc push --run-cache"
+RUN_CACHE_REPRODUCE = "dvc exp run --pull -S distill.learning_rate=0.003"
+
+
+def _command(line: str, *extra: str) -> list[str]:
+    return [*shlex.split(line), *extra]
+
+
+def test_the_readme_shows_the_tested_commands():
+    readme = (ROOT / "README.md").read_text()
+    for line in (HEADLINE_SHOW, TIMINGS_SHOW, HEADLINE_DIFF, EXP_SHOW, RUN_CACHE_PUSH):
+        assert line in readme, line
+    assert "dvc exp run --pull -S" in readme
+
+
+def test_metrics_show_holds_the_headline_numbers_and_the_timings_apart(repo):
+    shown = json.loads(_run(["dvc", "metrics", "show", "--json"], repo).stdout)[""]["data"]
+    assert all(path == "results/metrics.json" or path.startswith("results/timings/") for path in shown), shown
+    assert len([path for path in shown if path.startswith("results/timings/")]) == 12  # one per stage run
+    headline = shown["results/metrics.json"]["data"]
+    assert headline == json.loads((repo / "results" / "metrics.json").read_text())
+    evaluation = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
+    shared = json.loads((repo / "results" / "shared_computation" / "metrics.json").read_text())
+    for task in ("stand", "walk"):
+        for group in ("behaviour_expert", "teacher_medium_deterministic", "multitask_medium", "student_mse_medium",
+                      "student_q_medium", "student_kl_medium"):
+            assert headline["normalised_return"][group][task] == round(evaluation[task][group]["normalised"]["mean"], 2)
+    for group in ("mse_medium", "q_medium", "kl_medium"):
+        for layer in ("layer1", "layer2"):
+            row = shared["groups"][group]["pairs"]["stand-walk"][layer]
+            assert headline["per_state_tau_a"][group]["stand-walk"][layer] == round(row["per_state_tau_a_mean"], 4)
+    assert "seconds" not in json.dumps(headline) and len(json.dumps(headline)) < 2000  # one small file
+    table = _run(_command(HEADLINE_SHOW, "--md"), repo).stdout
+    rows = [line for line in table.splitlines() if line.strip()]
+    assert "normalised_return.student_mse_medium.stand" in table and len(rows) == 3  # header, rule, one row
+    timings = _run(_command(TIMINGS_SHOW, "--md"), repo).stdout
+    assert timings.count("results/timings/") == 12 and "normalised_return" not in timings
+
+
+def test_every_plot_renders_and_only_the_current_runs_are_drawn(repo):
+    curves = repo / "results" / "students" / "curves"
+    stale = curves / "mse-medium-7.tsv"  # what another profile's seed 7 would leave in the workspace
+    shutil.copy(curves / "mse-medium-0.tsv", stale)
+    try:
+        shown = json.loads(_run(["dvc", "plots", "show", "--json"], repo).stdout)
+        _run(["dvc", "plots", "show"], repo)  # the HTML page, written to dvc_plots/ (git-ignored)
+    finally:
+        stale.unlink()
+    assert not shown.get("errors"), shown.get("errors")
+    kinds = {path: {plot["type"] for plot in plots} for path, plots in shown["data"].items()}
+    assert "results/students/curves/mse-medium-7.tsv" not in kinds
+    for curve in ("collect/curves/stand.tsv", "teachers/curves/walk-medium-gaussian-0.tsv",
+                  "multitask/curves/medium-0.tsv", "students/curves/kl-medium-0.tsv", "eval/returns.tsv",
+                  "students/tau/mse-medium-0/per_state_tau_a_layer1.tsv",
+                  "students/tau/q-medium-0/per_state_tau_b_layer2.tsv"):
+        assert kinds[f"results/{curve}"] == {"vega"}, curve
+    pngs = {p.relative_to(repo).as_posix() for p in (repo / "results").rglob("*.png")}
+    assert len(pngs) >= 9 and all(kinds[png] == {"image"} for png in pngs)  # every figure a stage drew
+
+
+def test_no_output_is_tracked_by_git(repo):
+    """Every stage output is DVC's (cached, git-ignored): a profile switch or a rerun leaves git clean
+    but for dvc.lock and the .gitignore files DVC keeps."""
+    status = _run(["git", "status", "--porcelain", "--untracked-files=all"], repo).stdout.splitlines()
+    paths = [line[3:] for line in status]
+    assert all(p == "dvc.lock" or p.endswith(".gitignore") for p in paths), paths
+
+
+def test_a_forced_teacher_rerun_leaves_every_later_stage_up_to_date(repo):
+    """The checkpoint, curve and metrics hold no time or version: a rerun writes the same bytes, and
+    only the run's timing record changes (no stage reads it)."""
+    stage, name = "train_teachers@stand-medium-deterministic-0", "stand-medium-deterministic-0"
+    files = [repo / "data" / "teachers" / f"{name}.pt", repo / "results" / "teachers" / "curves" / f"{name}.tsv",
+             repo / "results" / "teachers" / "metrics" / f"{name}.json"]
+    before = [f.read_bytes() for f in files]
+    out = _run(["dvc", "repro", "-f", "-s", stage], repo).stdout
+    assert _stages_run(out) == {stage}
+    assert [f.read_bytes() for f in files] == before
+    assert json.loads(_run(["dvc", "status", "--json"], repo).stdout) == {}
 
 
 def _check_report(repo: Path) -> None:
@@ -193,29 +273,49 @@ def test_exp_run_of_distill_param_reruns_only_distill_and_what_reads_students(re
                                 "eval", "shared_computation", "report"}
     metrics = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
     assert "student_mse_medium" in metrics["stand"]
+    diff = json.loads(_run(_command(HEADLINE_DIFF, "--json"), repo).stdout)  # against the last commit
+    assert set(diff) == {"results/metrics.json"}
+    changed = diff["results/metrics.json"]
+    assert any(key.startswith("normalised_return.student_") for key in changed)
+    assert not any(key.startswith("normalised_return.teacher_") for key in changed)  # teachers did not rerun
 
 
-def test_queued_sweep_and_a_shared_remote(repo, tmp_path):
+def _experiment_headline(repo: Path, key: str, value) -> dict:
+    """results/metrics.json of the experiment whose distill.<key> is ``value`` (``dvc exp show --json``)."""
+    for base in json.loads(_run(["dvc", "exp", "show", "--json"], repo).stdout):
+        for experiment in base.get("experiments") or []:
+            for rev in experiment["revs"]:
+                if rev["data"]["params"]["params.yaml"]["data"]["distill"][key] == value:
+                    return rev["data"]["metrics"]["results/metrics.json"]["data"]
+    raise AssertionError(f"no experiment with distill.{key} = {value!r}")
+
+
+def test_queued_sweep_and_the_run_cache_shared_through_a_remote(repo, tmp_path):
     _run(["git", "checkout", "-q", "--", "."], repo)
     _run(["dvc", "checkout", "-q"], repo)
-    for lr in ("0.003", "0.004"):
-        _run(["dvc", "exp", "run", "--queue", "-S", f"distill.learning_rate={lr}"], repo)
-    _run(["dvc", "exp", "run", "--run-all", "-j", "1"], repo)
-    status = _run(["dvc", "queue", "status"], repo).stdout
-    assert status.count("Success") >= 2 and "Failed" not in status
-    shown = _run(["dvc", "exp", "show", "--json"], repo).stdout
-    assert "0.003" in shown and "0.004" in shown and "student_to_teacher" in shown
-
-    # another machine: clone the git repo, pull data and run cache from a shared remote, nothing reruns
     remote = tmp_path / "remote"
     _run(["dvc", "remote", "add", "-d", "shared", str(remote)], repo)
     _commit(repo, "shared remote")
-    _run(["dvc", "push", "--run-cache"], repo)
+    # the tiny profile is a complete params file: -S can set any key (lr_schedule is constant there)
+    for setting in ("distill.learning_rate=0.003", "distill.lr_schedule=cosine"):
+        _run(["dvc", "exp", "run", "--queue", "-S", setting], repo)
+    _run(["dvc", "exp", "run", "--run-all", "-j", "1"], repo)
+    status = _run(["dvc", "queue", "status"], repo).stdout
+    assert status.count("Success") >= 2 and "Failed" not in status
+    table = _run(_command(EXP_SHOW, "--md"), repo).stdout
+    assert "0.003" in table and "cosine" in table and "normalised_return.student_mse_medium.stand" in table
+    assert "seconds" not in table and "Created" not in table
+    machine_a = _experiment_headline(repo, "learning_rate", 0.003)
+
+    # machine B: a clone of the commit, the shared remote; it reproduces A's experiment from the run
+    # cache: every stage restored (outputs pulled), none executed
+    _run(_command(RUN_CACHE_PUSH), repo)
     clone = tmp_path / "clone"
     _run(["git", "clone", "-q", str(repo), str(clone)], tmp_path)
-    _run(["dvc", "pull", "--run-cache"], clone)
-    out = _run(["dvc", "repro"], clone).stdout
+    out = _run(_command(RUN_CACHE_REPRODUCE), clone).stdout
     assert not _stages_run(out), out
+    assert out.count("is cached - skipping run") >= 5  # params, the 3 students, eval, ...
+    assert json.loads((clone / "results" / "metrics.json").read_text()) == machine_a
     assert (clone / "data" / "students" / "mse-medium-0.pt").is_file()
 
 

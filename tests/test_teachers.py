@@ -41,7 +41,12 @@ def sources(tiny_collected, tmp_path_factory):
 
 
 def _paths(root) -> RunPaths:
-    return RunPaths(root / "teacher.pt", root / "metrics.json", root / "curve.tsv", root / "resume" / "r.pt")
+    return RunPaths(root / "teacher.pt", root / "metrics.json", root / "curve.tsv", root / "resume" / "r.pt",
+                    root / "timing.json")
+
+
+def _resumed_from(paths: RunPaths) -> int:
+    return json.loads(paths.timing.read_text())["resumed_from_step"]
 
 
 def _config(actor: str = "deterministic", schedule: TrainSchedule = SCHEDULE) -> TeacherConfig:
@@ -105,7 +110,7 @@ def test_interrupted_run_resumes_to_the_same_weights(sources, tmp_path, monkeypa
     assert paths.resume.is_file() and not paths.checkpoint.exists() and not paths.metrics.exists()
 
     resumed = train_teacher("stand", sources["stand"], _config(), 0, 0, paths)
-    assert resumed["resumed_from_step"] == 20
+    assert _resumed_from(paths) == 20
     state = torch.load(paths.checkpoint, weights_only=False)
     for key in ("actor", "critic"):
         for name, tensor in ref_state[key].items():
@@ -118,14 +123,15 @@ def test_resume_file_of_another_config_or_a_broken_one_restarts_cleanly(sources,
     paths.resume.parent.mkdir(parents=True)
     paths.resume.write_bytes(b"not a checkpoint")
     metrics = train_teacher("stand", sources["stand"], _config(), 0, 0, paths)
-    assert metrics["resumed_from_step"] == 0 and "ignoring resume file" in capsys.readouterr().out
+    assert metrics["gradient_steps"] == 40 and _resumed_from(paths) == 0
+    assert "ignoring resume file" in capsys.readouterr().out
 
     # a resume file left by a different configuration is not reused
     other = _config(schedule=TrainSchedule(**{**SCHEDULE.__dict__, "steps": 60}))
     from mop_core.artifacts import save_checkpoint
     save_checkpoint(paths.resume, {"kind": "training_resume", "fingerprint": "something else", "step": 30})
-    metrics = train_teacher("stand", sources["stand"], other, 0, 0, paths)
-    assert metrics["resumed_from_step"] == 0 and "restarting from step 0" in capsys.readouterr().out
+    train_teacher("stand", sources["stand"], other, 0, 0, paths)
+    assert _resumed_from(paths) == 0 and "restarting from step 0" in capsys.readouterr().out
 
 
 def test_multitask_critics_see_only_their_own_tasks_rewards(sources, tmp_path, monkeypatch):

@@ -4,6 +4,7 @@ and train_loop on a toy learner (an interrupted run resumed equals an uninterrup
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import pytest
 import torch
@@ -85,12 +86,30 @@ def test_finish_run_writes_every_file_and_drops_the_resume_file_last(tmp_path):
     p = paths(tmp_path)
     p.resume.parent.mkdir()
     p.resume.write_bytes(b"resume")
-    metrics = finish_run(p, {"kind": "toy", "w": torch.ones(1)}, [{"step": 1, "return_mean": 2.0}], {"r": 2.0})
+    p = replace(p, timing=tmp_path / "timings" / "run.json")
+    metrics = finish_run(p, {"kind": "toy", "w": torch.ones(1)}, [{"step": 1, "return_mean": 2.0}], {"r": 2.0},
+                         seconds=4.0, steps=8, resumed_from=2, device="cpu")
     assert metrics == {"r": 2.0} and not p.resume.exists()
     checkpoint = torch.load(p.checkpoint, weights_only=False)
-    assert checkpoint["kind"] == "toy" and "torch" in checkpoint["versions"]
+    assert checkpoint == {"kind": "toy", "w": torch.ones(1)}  # what the learner computed, nothing else
     assert json.loads(p.metrics.read_text()) == {"r": 2.0}
     assert read_curve(p.curve) == [{"step": "1", "return_mean": "2.0"}]
+    timing = json.loads(p.timing.read_text())  # times and machine facts: only here
+    assert timing["seconds"] == 4.0 and timing["steps_per_second"] == 2.0 and timing["resumed_from_step"] == 2
+    assert "torch==" in timing["versions"] and timing["device"] == "cpu"
+
+
+def test_a_rerun_writes_the_same_checkpoint_curve_and_metrics_bytes(tmp_path):
+    """A forced rerun must not make later stages stale: only the timing record may differ."""
+    schedule = TrainSchedule(steps=6, eval_every=3, eval_episodes=1, checkpoint_every=3)
+    outputs = []
+    for name, seconds in (("a", 1.0), ("b", 2.5)):  # the second run took longer
+        agent, curve, _ = run_toy(tmp_path / name, schedule)
+        p = replace(paths(tmp_path / name), timing=tmp_path / name / "timing.json")
+        finish_run(p, {"kind": "toy", "w": agent.weight.detach().clone()}, curve, {"w": float(agent.weight[0])},
+                   seconds=seconds, steps=6, resumed_from=0, device="cpu")
+        outputs.append([f.read_bytes() for f in (p.checkpoint, p.curve, p.metrics)])
+    assert outputs[0] == outputs[1]
 
 
 def test_an_interrupted_run_resumes_to_the_uninterrupted_curve_and_weights(tmp_path):
@@ -102,8 +121,7 @@ def test_an_interrupted_run_resumes_to_the_uninterrupted_curve_and_weights(tmp_p
     again, curve, resumed = run_toy(tmp_path / "b", schedule)
     assert resumed == 6
     assert torch.equal(again.weight, whole.weight)
-    strip = [{k: v for k, v in row.items() if k != "seconds"} for row in curve]
-    assert strip == [{k: v for k, v in row.items() if k != "seconds"} for row in whole_curve]
+    assert curve == whole_curve  # no wall-clock column: a resumed curve is the same record
 
 
 def test_a_non_finite_loss_stops_the_run_naming_it(tmp_path):

@@ -12,7 +12,8 @@ One file per (task, level). Keys (D4RL names, so d3rlpy/CORL/Minari users can re
     infos/torso_height, infos/torso_upright, infos/horizontal_velocity   [N] float64  reward features
 
 File attributes: task, level, seed, episode_length, behaviour_sha256 (the snapshot that acted),
-versions (JSON), content_sha256 (of all arrays; relabel files record it to detect stale pairs).
+content_sha256 (of all arrays; relabel files record it to detect stale pairs). The package versions
+that wrote it are in the collect stage's timing record (results/timings/collect.json), not in the file.
 
 The relabel file of a dataset holds ``rewards/<task>`` [N] float64 for every study task (the
 rewards of D_{j->i} without a copy of the observations) and the dataset's content_sha256.

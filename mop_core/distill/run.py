@@ -17,7 +17,7 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from mop_core.artifacts import load_checkpoint, state_sha256
+from mop_core.artifacts import load_checkpoint, state_sha256, write_curve
 from mop_core.catalogue import check_student_inputs
 from mop_core.config import from_mapping, require, to_dict
 from mop_core.data import read_dataset_attrs, read_json
@@ -178,9 +178,7 @@ def distill_student(sources: StudentSources, config: DistillConfig, schedule: Tr
                                               distiller.generator, paths, fingerprint, f"distill {name}", progress)
     final_seeds = [seeds["final_eval"] + i for i in range(schedule.final_eval_episodes)]
     metrics: dict = {"tasks": list(sources.tasks), "loss": config.loss, "levels": levels, "seed": seed,
-                     "gradient_steps": schedule.steps, "train_seconds": round(seconds, 1),
-                     "steps_per_second": round(schedule.steps / max(seconds, 1e-9), 1),
-                     "resumed_from_step": resumed_from}
+                     "gradient_steps": schedule.steps}
     if track_tau:
         metrics["per_state_tau"] = {
             "probe_source": config.probe_source,
@@ -204,7 +202,8 @@ def distill_student(sources: StudentSources, config: DistillConfig, schedule: Tr
         "student_sha256": state_sha256(student_state),
         "teachers": [{"path": str(p), "task": t.task, "level": t.level, "seed": t.seed, "actor": t.config.actor,
                       "actor_sha256": t.actor_sha256} for p, t in zip(sources.teachers, teachers)],
-        "states": [t.source for t in targets], "metrics": metrics}, curve, metrics)
+        "states": [t.source for t in targets], "metrics": metrics}, curve, metrics, seconds, schedule.steps,
+        resumed_from, device)
 
 
 @dataclass
@@ -244,9 +243,25 @@ def check_student_files(run: StudentRun, study_seed: int, teacher_config: Callab
     check_student_inputs(run, read_json(record), record)
 
 
-def print_summary(name: str, metrics: dict) -> None:
+def write_tau_curves(directory: Path, curve: list[dict]) -> list[Path]:
+    """Each per-state tau the student logged (``per_state_tau_<a|b>_layer<k>`` columns of its learning
+    curve) as its own two-column TSV (step, tau) in ``directory``: a stage-level ``dvc plots`` output
+    draws one curve per file, whatever the number of layers. No column (probe_states = 0): an empty
+    directory. Returns the files written."""
+    directory.mkdir(parents=True, exist_ok=True)
+    for old in directory.glob("*.tsv"):
+        old.unlink()
+    keys = [key for key in (curve[0] if curve else {}) if key.startswith("per_state_tau_")]
+    written = []
+    for key in keys:
+        write_curve(directory / f"{key}.tsv", [{"step": row["step"], "tau": row[key]} for row in curve])
+        written.append(directory / f"{key}.tsv")
+    return written
+
+
+def print_summary(name: str, metrics: dict, timing: dict) -> None:
     for task in metrics["tasks"]:
         m = metrics[task]
         print(f"student {name} on {task}: return {m['return_mean']:.1f} +- {m['return_std']:.1f} "
               f"(teacher {m['teacher_return_mean']:.1f}, ratio {m['student_to_teacher']:.2f})")
-    print(f"trained in {metrics['train_seconds']:.0f} s, {metrics['steps_per_second']:.0f} steps/s")
+    print(f"trained in {timing['seconds']:.0f} s, {timing['steps_per_second']:.0f} steps/s")

@@ -1,0 +1,102 @@
+"""Copy a finished study's results into ``record/``: the git-tracked record of a run.
+
+    python scripts/record.py             # after `dvc repro` of the quick profile (params.yaml)
+
+Every stage output is DVC-cached (so that the run cache can share any stage: see README, "DVC"),
+which keeps results/ out of git. The record is how a run's results reach a reader of the repository:
+every output under results/ that dvc.lock lists, copied to record/results/ with the same relative
+paths (the report's figure links keep working), and dvc.lock itself as record/dvc.lock. Each copied
+file or directory has the md5 that dvc.lock recorded for it, so the record is what the pipeline
+produced and nothing else; ``check_record`` (run by the tests on the committed record) says so.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def recorded_outputs(lock: dict) -> dict[str, str]:
+    """path -> md5 of every output under results/ in a parsed dvc.lock."""
+    outputs = {}
+    for stage in lock.get("stages", {}).values():
+        for out in stage.get("outs", []):
+            if out["path"].startswith("results/"):
+                outputs[out["path"]] = out["md5"]
+    return outputs
+
+
+def output_md5(path: Path) -> str:
+    """The md5 DVC gives a file or directory output (``<md5>.dir`` for a directory), by DVC's own code."""
+    from dvc_data.hashfile.build import build
+    from dvc_data.hashfile.db import HashFileDB
+    from dvc_objects.fs.local import LocalFileSystem
+
+    fs = LocalFileSystem()
+    with tempfile.TemporaryDirectory() as odb_dir:
+        _, _, obj = build(HashFileDB(fs, odb_dir), str(path), fs, "md5", ignore=None)
+        return obj.hash_info.value
+
+
+def check_record(record: Path) -> list[str]:
+    """Every problem with a record directory: an output dvc.lock lists that is missing or differs, or a
+    file that no output accounts for. Empty: the record is exactly what the locked run produced."""
+    lock = yaml.safe_load((record / "dvc.lock").read_text())
+    outputs = recorded_outputs(lock)
+    problems = [f"{path}: missing" for path in outputs if not (record / path).exists()]
+    problems += [f"{path}: md5 {output_md5(record / path)} != dvc.lock's {md5}" for path, md5 in outputs.items()
+                 if (record / path).exists() and output_md5(record / path) != md5]
+    for file in (record / "results").rglob("*"):
+        relative = file.relative_to(record).as_posix()
+        if file.is_file() and not any(relative == p or relative.startswith(p + "/") for p in outputs):
+            problems.append(f"{relative}: not an output in dvc.lock")
+    return problems
+
+
+def write_record(root: Path, record: Path) -> int:
+    lock_path = root / "dvc.lock"
+    if not lock_path.is_file():
+        raise SystemExit(f"error: {lock_path}: not found; run `dvc repro` first")
+    lock = yaml.safe_load(lock_path.read_text())
+    outputs = recorded_outputs(lock)
+    changed = [p for p, md5 in outputs.items() if not (root / p).exists() or output_md5(root / p) != md5]
+    if changed:
+        raise SystemExit(f"error: results differ from dvc.lock (run `dvc repro`, or `dvc checkout`): "
+                         f"{', '.join(changed[:5])}{' ...' if len(changed) > 5 else ''}")
+    staging = Path(tempfile.mkdtemp(prefix=".record-", dir=root))
+    for path in outputs:
+        target = staging / path
+        target.parent.mkdir(parents=True, exist_ok=True)
+        if (root / path).is_dir():
+            shutil.copytree(root / path, target, ignore=shutil.ignore_patterns(".gitignore"))
+        else:
+            shutil.copyfile(root / path, target)
+    shutil.copyfile(lock_path, staging / "dvc.lock")
+    problems = check_record(staging)
+    if problems:
+        shutil.rmtree(staging)
+        raise SystemExit("error: the copy does not match dvc.lock: " + "; ".join(problems))
+    if record.exists():  # replace the old record only once the new one is complete
+        shutil.rmtree(record)
+    staging.rename(record)
+    print(f"recorded {len(outputs)} outputs of dvc.lock under {record}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--root", type=Path, default=ROOT, help="the project whose results to record")
+    parser.add_argument("--dest", type=Path, default=None, help="the record directory (default: <root>/record)")
+    args = parser.parse_args(argv)
+    return write_record(args.root, args.dest or args.root / "record")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,47 @@
+"""record/: the git-tracked results of the last recorded quick study (scripts/record.py). Every
+output of dvc.lock under results/ is there with the md5 dvc.lock gives it, and nothing else is;
+results/ itself is DVC's (cached, git-ignored), so no stale result of another profile or run can
+sit in git."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+
+from conftest import ROOT
+
+sys.path.insert(0, str(ROOT / "scripts"))
+from record import check_record, recorded_outputs  # noqa: E402
+
+RECORD = ROOT / "record"
+
+
+def test_the_record_is_exactly_what_its_dvc_lock_describes():
+    assert check_record(RECORD) == []
+
+
+def test_the_record_holds_the_report_and_the_headline_numbers():
+    import yaml
+
+    outputs = recorded_outputs(yaml.safe_load((RECORD / "dvc.lock").read_text()))
+    assert {"results/report.md", "results/metrics.json", "results/eval/metrics.json"} <= set(outputs)
+    assert any(path.startswith("results/timings/") for path in outputs)
+
+
+def test_a_changed_missing_or_extra_file_is_reported(tmp_path):
+    copy = tmp_path / "record"
+    shutil.copytree(RECORD, copy)
+    (copy / "results" / "report.md").write_text("typed by hand\n")
+    (copy / "results" / "metrics.json").unlink()
+    (copy / "results" / "notes.txt").write_text("not an output\n")
+    problems = check_record(copy)
+    assert any(p.startswith("results/report.md: md5") for p in problems)
+    assert "results/metrics.json: missing" in problems
+    assert "results/notes.txt: not an output in dvc.lock" in problems
+
+
+def test_git_tracks_no_stage_output():
+    tracked = subprocess.run(["git", "ls-files", "results", "data"], cwd=ROOT, capture_output=True, text=True,
+                             check=True).stdout.split()
+    assert all(path.endswith(".gitignore") for path in tracked), tracked
