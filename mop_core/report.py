@@ -532,7 +532,7 @@ def load_run(run, key: dict) -> Run | None:
     return Run(key, run.seed, metrics, read_curve(run.paths.curve) if run.paths.curve.is_file() else [])
 
 
-def settings(params: Mapping[str, Any], results: StudyResults) -> dict:
+def settings(params: Mapping[str, Any]) -> dict:
     """The header's budgets (the params' values)."""
     collect, teachers = params["collect"]["schedule"], params["train_teachers"]
     distill, evaluation = params["distill"], params["eval"]
@@ -579,5 +579,5 @@ def load_results(catalogue: Catalogue, params: Mapping[str, Any]) -> StudyResult
                 path.relative_to(RESULTS).as_posix()
     figures["sorted_activations"] = sorted_figures
     results.figures = figures
-    results.settings = settings(params, results)
+    results.settings = settings(params)
     return results

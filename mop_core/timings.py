@@ -48,13 +48,12 @@ def stage_time_table(root: str | os.PathLike) -> str:
     one row per stage, matrix runs summed, with their count."""
     root = Path(root)
     rows: dict[str, tuple[float, int]] = {}
-    order = {stage: i for i, stage in enumerate(PIPELINE_ORDER)}
-    for path in sorted(root.rglob("*.json"), key=lambda p: (order.get(p.relative_to(root).parts[0].removesuffix(
-            ".json"), len(order)), str(p))):
+    for path in root.rglob("*.json"):
         stage = path.relative_to(root).parts[0].removesuffix(".json")
-        seconds = float(json.loads(path.read_text()).get("seconds", 0.0))
         total, runs = rows.get(stage, (0.0, 0))
-        rows[stage] = (total + seconds, runs + 1)
+        rows[stage] = (total + float(json.loads(path.read_text()).get("seconds", 0.0)), runs + 1)
+    order = {stage: i for i, stage in enumerate(PIPELINE_ORDER)}
+    rows = dict(sorted(rows.items(), key=lambda item: (order.get(item[0], len(order)), item[0])))
     lines = ["| stage | runs | seconds |", "|---|---|---|"]
     lines += [f"| {stage} | {runs} | {total:.0f} |" for stage, (total, runs) in rows.items()]
     total = sum(seconds for seconds, _ in rows.values())

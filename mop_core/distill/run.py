@@ -243,20 +243,17 @@ def check_student_files(run: StudentRun, study_seed: int, teacher_config: Callab
     check_student_inputs(run, read_json(record), record)
 
 
-def write_tau_curves(directory: Path, curve: list[dict]) -> list[Path]:
+def write_tau_curves(directory: Path, curve: list[dict]) -> None:
     """Each per-state tau the student logged (``per_state_tau_<a|b>_layer<k>`` columns of its learning
     curve) as its own two-column TSV (step, tau) in ``directory``: a stage-level ``dvc plots`` output
     draws one curve per file, whatever the number of layers. No column (probe_states = 0): an empty
-    directory. Returns the files written."""
+    directory."""
     directory.mkdir(parents=True, exist_ok=True)
     for old in directory.glob("*.tsv"):
         old.unlink()
     keys = [key for key in (curve[0] if curve else {}) if key.startswith("per_state_tau_")]
-    written = []
     for key in keys:
         write_curve(directory / f"{key}.tsv", [{"step": row["step"], "tau": row[key]} for row in curve])
-        written.append(directory / f"{key}.tsv")
-    return written
 
 
 def print_summary(name: str, metrics: dict, timing: dict) -> None:
