@@ -35,7 +35,8 @@ from mop_core.envs import ACT_DIM, OBS_DIM, PHYSICS_DIM, WalkerEnv
 from mop_core.layout import CollectPaths
 from mop_core.nn import numpy_policy
 from mop_core.rollout import collect_episodes, episode_returns, trajectory_returns
-from mop_core.runtime import TrainingDivergedError, derive_seeds, die_with_parent, require_finite, set_threads
+from mop_core.runtime import TrainingDivergedError, configure_compute, derive_seeds, die_with_parent
+from mop_core.step_metrics import StepMetrics
 from mop_core.study import StudyConfig, section
 from mop_core.tasks import REWARD_FEATURES, get_task
 from mop_core.training import RESUME_KIND, non_finite_tensor, run_fingerprint, try_resume
@@ -206,6 +207,7 @@ def train_behaviour(task: str, config: CollectConfig, seed: int, device: torch.d
     obs = env.reset()
     started = time.perf_counter()
     saved_at = agent.updates
+    losses = StepMetrics(f"collect {task} (TD3)")
     total_env_steps = sched.warmup_steps + sched.total_steps
     bar = tqdm(total=sched.total_steps, initial=agent.updates, desc=f"collect {task}", position=position,
                disable=not progress, mininterval=2.0, unit="upd")
@@ -220,12 +222,12 @@ def train_behaviour(task: str, config: CollectConfig, seed: int, device: torch.d
         obs = env.reset() if step.timeout else step.observation
         if t < sched.warmup_steps:
             continue
-        losses = agent.update(buffer.sample(config.td3.batch_size, sampler))
-        require_finite(losses, f"collect {task} (TD3)", agent.updates)
-        run.last_losses = run.last_losses | losses
+        step_losses = agent.update(buffer.sample(config.td3.batch_size, sampler))
         g = agent.updates
+        losses.add(g, step_losses)
         bar.update(1)
         if g % sched.eval_every == 0 or g == sched.total_steps or g == sched.medium_step:
+            run.last_losses = run.last_losses | losses.take_last()
             returns = episode_returns(policy, task, eval_seeds, config.episode_length)
             row = {"step": g, "env_step": t + 1, "return_mean": float(returns.mean()),
                    "return_std": float(returns.std()), "critic_loss": run.last_losses.get("critic_loss", math.nan),
@@ -234,6 +236,7 @@ def train_behaviour(task: str, config: CollectConfig, seed: int, device: torch.d
             bar.set_postfix(ret=f"{row['return_mean']:.0f}")
         if (resume is not None and step.timeout and g - saved_at >= sched.checkpoint_every
                 and t + 1 < total_env_steps):
+            run.last_losses = run.last_losses | losses.take_last()
             _save_resume(resume, fingerprint, t + 1, agent, sampler, rng, env_random, buffer, run,
                          seconds_before + time.perf_counter() - started, f"collect {task} (TD3)")
             saved_at = g
@@ -336,7 +339,7 @@ def collect_task(task: str, config: CollectConfig, seed: int, paths: CollectPath
 
 def _collect_worker(task: str, config: CollectConfig, seed: int, paths: CollectPaths, device: str, progress: bool,
                     position: int, threads: int) -> dict:
-    set_threads(threads)
+    configure_compute(threads)
     return collect_task(task, config, seed, paths, device, progress, position)
 
 

@@ -18,7 +18,7 @@ from mop_core.data import read_json, write_json
 from mop_core.distill.run import load_student
 from mop_core.plots import metric_curves, read_curve, sorted_activations
 from mop_core.runs import structure_group
-from mop_core.runtime import derive_seeds, set_threads
+from mop_core.runtime import configure_compute, derive_seeds
 from mop_core.shared_computation import (
     TIES_NOTE,
     SharedComputationConfig,
@@ -49,7 +49,7 @@ def measure_catalogue(catalogue: Catalogue, config: SharedComputationConfig, thr
     jobs = rollout_jobs({run.name: (run.paths.checkpoint, students[run.name].tasks) for run in runs}, catalogue.tasks)
     visited = collect_visited(jobs, catalogue.study_seed, episode_length, config, progress)
     rollout_seconds = time.perf_counter() - started
-    set_threads(threads)
+    configure_compute(threads)
 
     records, untrained = {}, {}
     for n, run in enumerate(runs):

@@ -22,8 +22,9 @@ from tqdm import tqdm
 
 from mop_core.artifacts import RunPaths, load_checkpoint, save_checkpoint, write_curve
 from mop_core.data.hdf5 import write_json
-from mop_core.runtime import TrainingDivergedError, require_finite
+from mop_core.runtime import TrainingDivergedError
 from mop_core.schedule import TrainSchedule
+from mop_core.step_metrics import StepMetrics
 from mop_core.timings import per_second, write_timing
 
 RESUME_KIND = "training_resume"
@@ -66,8 +67,10 @@ def train_loop(agent, update: Callable[[], dict], evaluate: Callable[[list[int]]
     """Run ``update`` to ``schedule.steps`` with periodic evaluation and resume checkpoints.
 
     Returns the learning curve rows, the training seconds and the step it resumed from (0 if none).
-    A NaN or infinite loss (every step) or weight (at every checkpoint) stops the run with
-    :class:`TrainingDivergedError` naming ``desc`` and the step; the last good resume file is kept.
+    A NaN or infinite loss or weight stops the run with :class:`TrainingDivergedError` naming
+    ``desc`` and the step; the last good resume file is kept. Losses stay on the device until read
+    (:class:`~mop_core.step_metrics.StepMetrics`: every ``SYNC_EVERY`` steps, before an evaluation and
+    before a resume file), weights are checked at every checkpoint.
     The resume file holds the losses of the evaluation window in progress, so a resumed run's
     curve equals an uninterrupted one's whatever ``checkpoint_every`` and ``eval_every`` are.
     """
@@ -82,30 +85,28 @@ def train_loop(agent, update: Callable[[], dict], evaluate: Callable[[list[int]]
         curve, seconds_before, resumed_from = state["curve"], state["seconds"], state["step"]
         losses = state.get("losses", {})
     kept = f"; the resume file {paths.resume} (if any) keeps the last good state"
+    metrics = StepMetrics(desc, kept, losses)
     eval_seeds = [seeds["eval"] + i for i in range(schedule.eval_episodes)]
     started = time.perf_counter()
     bar = tqdm(total=schedule.steps, initial=resumed_from, desc=desc, disable=not progress, mininterval=2.0,
                unit="upd")
     for step in range(resumed_from + 1, schedule.steps + 1):
-        values = update()
-        require_finite(values, desc, step, kept)
-        for key, value in values.items():
-            losses.setdefault(key, []).append(value)
+        metrics.add(step, update())
         bar.update(1)
         if step % schedule.eval_every == 0 or step == schedule.steps:
-            row = {"step": step, **evaluate(eval_seeds)}
-            row |= {key: float(np.mean(values)) for key, values in sorted(losses.items())}
+            means = metrics.take()  # before the evaluation: a diverged run stops without evaluating
+            row = {"step": step, **evaluate(eval_seeds)} | means
             curve.append(row)
-            losses = {}
             bar.set_postfix(ret=f"{row['return_mean']:.0f}")
         if step % schedule.checkpoint_every == 0 or step == schedule.steps:
+            metrics.sync()
             bad = non_finite_tensor(agent.state_dict())
             if bad is not None:
                 raise TrainingDivergedError(f"{desc}: non-finite weights ({bad}) at step {step}; stopped{kept}")
         if step % schedule.checkpoint_every == 0 and step < schedule.steps:
             save_checkpoint(paths.resume, {"kind": RESUME_KIND, "fingerprint": fingerprint, "step": step,
                                            "agent": agent.state_dict(), "sampler": sampler.get_state(),
-                                           "curve": curve, "losses": losses,
+                                           "curve": curve, "losses": metrics.values,
                                            "seconds": seconds_before + time.perf_counter() - started})
     bar.close()
     return curve, seconds_before + time.perf_counter() - started, resumed_from

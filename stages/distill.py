@@ -24,7 +24,7 @@ from mop_core.distill.losses import LOSSES
 from mop_core.distill.run import StudentSources, check_student_files, distill_student, print_summary, write_tau_curves
 from mop_core.layout import student_inputs_file
 from mop_core.plots import read_curve
-from mop_core.runtime import progress_enabled, resolve_device, set_threads
+from mop_core.runtime import configure_compute, progress_enabled, resolve_device
 from mop_core.study import distill_grid, pairing_levels, study_config
 from mop_core.teachers import teacher_config
 
@@ -51,7 +51,7 @@ def main() -> None:
     check_student_files(run, study.seed, lambda actor: teacher_config(params, study, actor),
                         student_inputs_file(run.name))
 
-    set_threads(grid.threads)
+    configure_compute(grid.threads)
     sources = StudentSources(run.tasks, tuple(t.paths.checkpoint for t in run.teachers), run.datasets)
     with keys_under("distill"):  # sizes checked against the states: distill.batch_size
         metrics = distill_student(sources, config, grid.schedule, study.episode_length,

@@ -17,7 +17,7 @@ from mop_core.config import ConfigError
 from mop_core.data import write_json
 from mop_core.layout import dataset_file, relabel_file, stage_dir, timing_file
 from mop_core.relabel import RelabelConfig, relabel_dataset
-from mop_core.runtime import set_threads
+from mop_core.runtime import configure_compute
 from mop_core.study import study_config, typed_section
 from mop_core.timings import per_second, write_timing
 
@@ -30,7 +30,7 @@ def main() -> None:
     missing = [str(dataset_file(t, lv)) for t, lv in sources if not dataset_file(t, lv).is_file()]
     if missing:
         raise ConfigError(f"study.tasks: no dataset for {', '.join(missing)}; run the collect stage first")
-    set_threads(1)
+    configure_compute(1)
     started = time.perf_counter()
     metrics = {}
     for task, level in sources:

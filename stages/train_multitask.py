@@ -18,7 +18,7 @@ from mop_core.config import ConfigError, keys_under
 from mop_core.data import read_json
 from mop_core.layout import dataset_file, relabel_file
 from mop_core.runs import MultitaskRun
-from mop_core.runtime import progress_enabled, resolve_device, set_threads
+from mop_core.runtime import configure_compute, progress_enabled, resolve_device
 from mop_core.study import multitask_grid, study_config, teacher_grid
 from mop_core.teachers import DataSource, teacher_config, train_multitask
 
@@ -41,7 +41,7 @@ def main() -> None:
     sources = [DataSource(dataset_file(t, run.level), relabel_file(t, run.level), t, t, run.level) for t in run.tasks]
     require_inputs([p for s in sources for p in (s.dataset, s.relabel)], "relabel")
 
-    set_threads(threads)
+    configure_compute(threads)
     with keys_under("train_teachers"):  # its PBRL settings are train_teachers'
         metrics = train_multitask(run.tasks, sources, config, run.seed, study.seed, run.paths,
                                   device, progress_enabled(study.progress))

@@ -18,7 +18,7 @@ from mop_core.agents.pbrl import ACTOR_TYPES
 from mop_core.config import ConfigError, keys_under
 from mop_core.data import read_json
 from mop_core.runs import TeacherRun
-from mop_core.runtime import progress_enabled, resolve_device, set_threads
+from mop_core.runtime import configure_compute, progress_enabled, resolve_device
 from mop_core.study import study_config, teacher_grid
 from mop_core.teachers import DataSource, teacher_config, train_teacher
 
@@ -42,7 +42,7 @@ def main() -> None:
     source = DataSource(run.dataset, run.relabel, run.task, run.task, run.level)
     require_inputs([source.dataset, source.relabel], "relabel")
 
-    set_threads(threads)
+    configure_compute(threads)
     with keys_under("train_teachers"):  # sizes checked against the data: train_teachers.pbrl.batch_size
         metrics = train_teacher(run.task, source, config, run.seed, study.seed, run.paths,
                                 device, progress_enabled(study.progress))

@@ -6,7 +6,15 @@ import pytest
 import torch
 from torch import nn
 
-from mop_core.nn import EnsembleCritic, EnsembleLayerNorm, EnsembleLinear, mlp
+from mop_core.nn import (
+    EnsembleCritic,
+    EnsembleLayerNorm,
+    EnsembleLinear,
+    _EnsembleReLUMLP,
+    adam,
+    mlp,
+    per_member_forward,
+)
 
 
 def test_ensemble_linear_equals_loop_in_outputs_and_gradients():
@@ -62,14 +70,103 @@ def test_member_by_member_path_equals_the_batched_path_in_outputs_and_gradients(
     torch.manual_seed(0)
     critic = EnsembleCritic(24, 6, [16, 16], ensemble_size=4, layer_norm=layer_norm)
     obs, act = torch.randn(50, 24), torch.randn(50, 6)
-    critic.member_loop_rows = 10**9
+    critic.member_loop_work = 10**18
     batched = critic(obs, act)
     batched.square().sum().backward()
     grads = {n: p.grad.clone() for n, p in critic.named_parameters()}
     critic.zero_grad()
-    critic.member_loop_rows = 1
+    critic.member_loop_work = 1
     looped = critic(obs, act)
     looped.square().sum().backward()
     torch.testing.assert_close(looped, batched)
     for n, p in critic.named_parameters():
         torch.testing.assert_close(p.grad, grads[n], msg=n)
+
+
+# ---- the hand-written member-by-member pass and the fused optimiser ----------------------------
+def _relu_ensemble(width: int = 6, members: int = 3, depth: int = 2, dtype=torch.float64) -> nn.Sequential:
+    torch.manual_seed(1)
+    return mlp(5, [width] * depth, 2, ensemble_size=members).to(dtype)
+
+
+@pytest.mark.parametrize("depth", [1, 2, 3])
+def test_hand_written_member_pass_passes_gradcheck_in_weights_and_inputs(depth):
+    net = _relu_ensemble(depth=depth)
+    linears = [m for m in net if isinstance(m, EnsembleLinear)]
+    x = torch.randn(11, 5, dtype=torch.float64, requires_grad=True)
+    params = [lin.weight for lin in linears] + [lin.bias for lin in linears]
+    assert torch.autograd.gradcheck(lambda x_, *p: _EnsembleReLUMLP.apply(x_, *p), (x, *params))
+
+
+def test_hand_written_member_pass_equals_autograd_through_plain_layers():
+    net = _relu_ensemble(width=32, members=4, dtype=torch.float32)
+    x = torch.randn(300, 5, requires_grad=True)
+    fast = per_member_forward(net, x)
+    assert fast.grad_fn.name() == "_EnsembleReLUMLPBackward"
+    weight = torch.randn_like(fast)
+    (fast * weight).sum().backward()
+    fast_grads = [p.grad.clone() for p in net.parameters()] + [x.grad.clone()]
+    net.zero_grad()
+    x.grad = None
+    plain = net(x.unsqueeze(0).expand(4, -1, -1))  # autograd through EnsembleLinear and nn.ReLU
+    torch.testing.assert_close(fast, plain)
+    (plain * weight).sum().backward()
+    for got, expected in zip(fast_grads, [p.grad for p in net.parameters()] + [x.grad]):
+        torch.testing.assert_close(got, expected)
+
+
+def test_hand_written_member_pass_gives_input_gradients_through_frozen_weights():
+    net = _relu_ensemble(dtype=torch.float32).requires_grad_(False)
+    x = torch.randn(20, 5, requires_grad=True)
+    per_member_forward(net, x).sum().backward()
+    x_fast = x.grad.clone()
+    x.grad = None
+    net(x.unsqueeze(0).expand(3, -1, -1)).sum().backward()
+    torch.testing.assert_close(x_fast, x.grad)
+    assert all(p.grad is None for p in net.parameters())
+
+
+def test_layer_norm_ensembles_take_the_generic_member_loop():
+    torch.manual_seed(0)
+    critic = EnsembleCritic(24, 6, [16, 16], ensemble_size=2, layer_norm=True)
+    assert per_member_forward(critic.net, torch.randn(3, 30)).grad_fn.name() != "_EnsembleReLUMLPBackward"
+
+
+def test_work_decides_between_the_member_loop_and_one_batched_matmul():
+    critic = EnsembleCritic(24, 6, [256, 256], ensemble_size=5)
+    cpu = torch.device("cpu")
+    assert critic.member_by_member(1024, cpu) and not critic.member_by_member(256, cpu)
+    assert not critic.member_by_member(10**6, torch.device("meta"))  # other devices: always batched
+
+
+def test_fused_adam_takes_the_same_steps_as_the_default_adam():
+    torch.manual_seed(0)
+    a = mlp(8, [32, 32], 3)
+    b = mlp(8, [32, 32], 3)
+    b.load_state_dict(a.state_dict())
+    fused, default = adam(a.parameters(), 1e-3), torch.optim.Adam(b.parameters(), lr=1e-3)
+    for step in range(50):
+        x = torch.randn(16, 8, generator=torch.Generator().manual_seed(step))
+        for net, opt in ((a, fused), (b, default)):
+            opt.zero_grad()
+            net(x).pow(2).mean().backward()
+            opt.step()
+    for p, q in zip(a.parameters(), b.parameters()):
+        torch.testing.assert_close(p, q, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("layer_norm", [False, True])
+def test_first_member_alone_equals_the_first_row_of_the_ensemble(layer_norm):
+    torch.manual_seed(0)
+    critic = EnsembleCritic(24, 6, [16, 16], ensemble_size=3, layer_norm=layer_norm)
+    obs, act = torch.randn(40, 24), torch.randn(40, 6, requires_grad=True)
+    alone = critic.first(obs, act)
+    alone.sum().backward()
+    grads = [act.grad.clone()] + [p.grad.clone() for p in critic.parameters()]
+    act.grad = None
+    critic.zero_grad()
+    full = critic(obs, act)[0]
+    full.sum().backward()
+    torch.testing.assert_close(alone, full)
+    for got, expected in zip(grads, [act.grad] + [p.grad for p in critic.parameters()]):
+        torch.testing.assert_close(got, expected)

@@ -14,6 +14,7 @@ from mop_core.agents.pbrl import (
     PBRLConfig,
     actor_objective,
     beta_ood,
+    ensemble_std,
     in_distribution_target,
     noisy,
     ood_target,
@@ -345,3 +346,35 @@ def test_multitask_actor_reads_the_task_id():
         agent.update(_batch(step), agent.next_task)
     obs = torch.randn(5, 24).numpy()
     assert not torch.allclose(torch.as_tensor(agent.act(obs, 0)), torch.as_tensor(agent.act(obs, 1)))
+
+
+# ---- what the fast paths must equal -------------------------------------------------------------
+def test_ensemble_std_equals_torch_std():
+    q = torch.randn(5, 300) * 10 + 3
+    torch.testing.assert_close(ensemble_std(q), q.std(dim=0))
+
+
+@pytest.mark.parametrize("actor", ["deterministic", "gaussian"])
+def test_ood_actions_equal_the_policy_run_on_every_repeated_state(actor):
+    config = PBRLConfig(**{**CONFIG.__dict__, "actor": actor, "ood_actions": 3})
+    agent = PBRL(config, 24, 6, seed=0)
+    batch = _batch()
+    agent.generator.manual_seed(4)
+    states, actions = agent.critic.ood_inputs(batch, agent.policy, agent.generator)
+    # the straightforward computation: repeat the states, then run the policy on every copy
+    agent.generator.manual_seed(4)
+    repeated = torch.cat([batch.observations, batch.next_observations]).repeat_interleave(3, dim=0)
+    with torch.no_grad():
+        expected = noisy(agent.policy(repeated), config.ood_noise, config.noise_clip, agent.generator)
+    torch.testing.assert_close(states, repeated)
+    torch.testing.assert_close(actions, expected)
+    if actor == "gaussian":  # the copies of a state are independent samples, not one sample repeated
+        assert not torch.allclose(actions[0], actions[1], atol=1e-3)
+
+
+def test_critic_step_reports_its_metrics_as_tensors_without_reading_them():
+    agent = PBRL(CONFIG, 24, 6, seed=0)
+    metrics = agent.update(_batch())
+    assert {"critic_loss_in", "critic_loss_ood", "q_mean", "target_mean", "q_std", "q_ood_std"} <= set(metrics)
+    assert all(isinstance(metrics[k], torch.Tensor) and metrics[k].dim() == 0 for k in metrics if k != "beta_ood")
+    assert all(math.isfinite(float(v)) for v in metrics.values())

@@ -26,7 +26,7 @@ from mop_core.agents.pbrl import (
     policy_actions,
 )
 from mop_core.data.buffer import Batch
-from mop_core.nn import numpy_policy, soft_update, with_task_id
+from mop_core.nn import adam, numpy_policy, soft_update, with_task_id
 
 
 class MultiTaskPBRL:
@@ -39,7 +39,7 @@ class MultiTaskPBRL:
         torch.manual_seed(seed)
         self.actor = make_actor(config, obs_dim + len(self.tasks), act_dim).to(self.device)
         self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
-        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=config.learning_rate)
+        self.actor_optimizer = adam(self.actor.parameters(), config.learning_rate)
         self.critics = [PessimisticCritic(config, obs_dim, act_dim, self.device) for _ in self.tasks]
         self.critic_updates = [0] * len(self.tasks)
         self.temperature = EntropyTemperature(config, self.device)
@@ -52,9 +52,10 @@ class MultiTaskPBRL:
         return self.updates % len(self.tasks)
 
     def _conditioned(self, actor: torch.nn.Module, task: int):
-        return lambda obs: policy_actions(actor, with_task_id(obs, task, len(self.tasks)), self.generator)
+        return lambda obs, repeats=1: policy_actions(actor, with_task_id(obs, task, len(self.tasks)), self.generator,
+                                                     repeats)
 
-    def update(self, batch: Batch, task: int) -> dict[str, float]:
+    def update(self, batch: Batch, task: int) -> dict[str, torch.Tensor | float]:
         """One PBRL step for ``task`` on ``batch`` (a batch of that task's dataset and rewards)."""
         if task != self.next_task:
             raise ValueError(f"task: expected {self.next_task} (tasks alternate), got {task}")

@@ -22,7 +22,7 @@ import torch
 
 from mop_core.config import require
 from mop_core.data.buffer import Batch
-from mop_core.nn import DeterministicActor, EnsembleCritic, smoothed_target_action, soft_update
+from mop_core.nn import DeterministicActor, EnsembleCritic, adam, smoothed_target_action, soft_update
 
 
 @dataclass(frozen=True)
@@ -70,8 +70,8 @@ class TD3:
         self.critic = EnsembleCritic(obs_dim, act_dim, config.hidden_sizes, 2, config.layer_norm).to(self.device)
         self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
-        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=config.learning_rate)
-        self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=config.learning_rate)
+        self.actor_optimizer = adam(self.actor.parameters(), config.learning_rate)
+        self.critic_optimizer = adam(self.critic.parameters(), config.learning_rate)
         self.generator = torch.Generator(self.device).manual_seed(seed)
         self.updates = 0
 
@@ -94,8 +94,9 @@ class TD3:
         next_q = self.critic_target(batch.next_observations, next_action)
         return td3_target(batch.rewards, batch.terminals, next_q, self.config.gamma)
 
-    def update(self, batch: Batch) -> dict[str, float]:
-        """One critic step; every ``policy_delay``-th call also an actor step and target update."""
+    def update(self, batch: Batch) -> dict[str, torch.Tensor]:
+        """One critic step; every ``policy_delay``-th call also an actor step and target update.
+        Metrics are 0-d tensors, read in batches by the caller (:mod:`mop_core.step_metrics`)."""
         batch = batch.to(self.device)
         target = self.compute_target(batch)
         q = self.critic(batch.observations, batch.actions)  # [2, B]
@@ -104,17 +105,17 @@ class TD3:
         critic_loss.backward()
         self.critic_optimizer.step()
         self.updates += 1
-        metrics = {"critic_loss": critic_loss.item(), "q_mean": q.mean().item()}
+        metrics = {"critic_loss": critic_loss.detach(), "q_mean": q.mean().detach()}
         if self.updates % self.config.policy_delay == 0:
             self.critic.requires_grad_(False)  # the actor step needs dQ/da only
-            actor_loss = -self.critic(batch.observations, self.actor(batch.observations))[0].mean()
+            actor_loss = -self.critic.first(batch.observations, self.actor(batch.observations)).mean()
             self.actor_optimizer.zero_grad(set_to_none=True)
             actor_loss.backward()
             self.actor_optimizer.step()
             self.critic.requires_grad_(True)
             soft_update(self.actor_target, self.actor, self.config.tau)
             soft_update(self.critic_target, self.critic, self.config.tau)
-            metrics["actor_loss"] = actor_loss.item()
+            metrics["actor_loss"] = actor_loss.detach()
         return metrics
 
     def state_dict(self) -> dict:

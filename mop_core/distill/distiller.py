@@ -24,7 +24,7 @@ from mop_core.config import ConfigError, from_mapping, require
 from mop_core.distill.losses import LOSSES, Q_REDUCTIONS, LossInputs, mse_per_state
 from mop_core.distill.states import STATE_SOURCES, TaskStates
 from mop_core.distill.student import Student, StudentConfig
-from mop_core.nn import EnsembleCritic
+from mop_core.nn import EnsembleCritic, adam
 from mop_core.study import DISTILL_GRID_KEYS, section
 
 LR_SCHEDULES = ("constant", "cosine")
@@ -97,7 +97,7 @@ class Distiller:
         torch.manual_seed(seed)  # student initialisation
         self.student = Student(config.student, obs_dim, act_dim, len(self.targets),
                                gaussian=self.spec.gaussian_student).to(self.device)
-        self.optimizer = torch.optim.Adam(self.student.parameters(), lr=config.learning_rate)
+        self.optimizer = adam(self.student.parameters(), config.learning_rate)
         self.generator = torch.Generator().manual_seed(seed)
         self.updates = 0
 
@@ -105,9 +105,9 @@ class Distiller:
         return torch.randint(len(self.targets[task]), (batch_size,), generator=self.generator).to(self.device)
 
     def loss(self, rows: Sequence[torch.Tensor], tasks: Sequence[int] | None = None
-             ) -> tuple[torch.Tensor, dict[str, float]]:
+             ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """The loss on the given state indices (``rows[k]`` of task ``tasks[k]``; default: one index
-        tensor per task, in task order) and per-task metrics."""
+        tensor per task, in task order) and per-task metrics (0-d tensors, not read here)."""
         cfg = self.config
         tasks = list(range(len(self.targets))) if tasks is None else list(tasks)
         targets = [self.targets[t] for t in tasks]
@@ -120,12 +120,12 @@ class Distiller:
         per_state, actions = self.spec.per_state(LossInputs(self.student, obs, task_ids, teacher_actions, teacher_std,
                                                             tasks, sizes, self.critics, cfg.q_reduction))
         loss = per_state.mean()
-        metrics = {"loss": loss.item()}
+        metrics = {"loss": loss.detach()}
         with torch.no_grad():
             action_mse = mse_per_state(actions, teacher_actions)
             for t, part, mse in zip(tasks, per_state.split(sizes), action_mse.split(sizes)):
-                metrics[f"loss_{self.tasks[t]}"] = part.mean().item()
-                metrics[f"action_mse_{self.tasks[t]}"] = mse.mean().item()
+                metrics[f"loss_{self.tasks[t]}"] = part.mean()
+                metrics[f"action_mse_{self.tasks[t]}"] = mse.mean()
         return loss, metrics
 
     def _step(self, loss: torch.Tensor) -> None:
@@ -133,7 +133,7 @@ class Distiller:
         loss.backward()
         self.optimizer.step()
 
-    def update(self) -> dict[str, float]:
+    def update(self) -> dict[str, torch.Tensor | float]:
         lr = learning_rate_at(self.config, self.updates, self.total_steps)
         for group in self.optimizer.param_groups:
             group["lr"] = lr
