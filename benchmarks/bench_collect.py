@@ -25,7 +25,7 @@ from mop_core.data import ReplayBuffer
 from mop_core.data.hdf5 import Dataset
 from mop_core.envs import VectorWalkerEnv, WalkerEnv
 from mop_core.relabel import relabel_rewards
-from mop_core.runtime import set_threads
+from mop_core.runtime import configure_compute
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -115,7 +115,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick-only", action="store_true", help="skip the (slow) thesis-size TD3 update")
     args = parser.parse_args()
-    set_threads(1)
+    configure_compute(1)
     print(f"torch {torch.__version__}, mujoco {mujoco.__version__}, 1 torch thread per measurement")
     single = env_steps_per_second()
     print(f"dm_control walker, one env:                 {single:10,.0f} steps/s")

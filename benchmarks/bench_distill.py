@@ -25,7 +25,7 @@ from mop_core.distill.run import student_policy
 from mop_core.distill.states import TaskStates, task_states, teacher_outputs
 from mop_core.nn import DeterministicActor
 from mop_core.rollout import episode_returns
-from mop_core.runtime import set_threads
+from mop_core.runtime import configure_compute
 
 ROOT = Path(__file__).resolve().parents[1]
 STATES = 100_000  # per task (the quick profile's dataset size)
@@ -93,7 +93,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--threads", type=int, default=1, help="torch threads (the stage's distill.threads)")
     args = parser.parse_args()
-    set_threads(args.threads)
+    configure_compute(args.threads)
     print(f"torch {torch.__version__}, {args.threads} thread(s)")
     quick, quick_teacher, envs = profile(ROOT / "params.yaml")
     thesis, thesis_teacher, _ = profile(ROOT / "profiles" / "thesis.yaml")

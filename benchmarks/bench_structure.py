@@ -27,7 +27,7 @@ from timing import rate
 from mop_core.distill.distiller import Distiller
 from mop_core.distill.states import task_states
 from mop_core.nn import DeterministicActor
-from mop_core.runtime import set_threads
+from mop_core.runtime import configure_compute
 from mop_core.structure import kendall_tau_b, per_state_tau_by_layer
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -87,7 +87,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     args = parser.parse_args()
-    set_threads(args.threads)
+    configure_compute(args.threads)
     print(f"torch {torch.__version__}, numpy {np.__version__}, {args.threads} thread(s)")
     tau_rates()
     probe_overhead("quick", ROOT / "params.yaml")

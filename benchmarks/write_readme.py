@@ -40,6 +40,7 @@ class Bench:
 BENCHES = [
     Bench("collect", "bench_collect.py", threads=False, quick_flag="--quick-only"),
     Bench("pbrl", "bench_pbrl.py", threads=True, quick_flag="--quick-only"),
+    Bench("reference", "bench_reference.py", threads=True, quick_flag="--quick-only"),
     Bench("distill", "bench_distill.py", threads=True, quick_flag=None),
     Bench("structure", "bench_structure.py", threads=True, quick_flag=None),
 ]
@@ -150,7 +151,8 @@ def header(quick: bool, only: list[str] | None) -> str:
         "",
         "Regenerate: `python benchmarks/write_readme.py` (all, full size); `--quick` skips the thesis-size",
         "measurements of the scripts that have a small mode; `--only NAME` reruns one benchmark and keeps",
-        f"the other sections. Names: {', '.join(b.name for b in BENCHES)}.",
+        f"the other sections. Names: {', '.join(b.name for b in BENCHES)}. The `reference` benchmark needs",
+        "a checkout of the thesis's code at its pinned commit in `MOP_REFERENCE` (benchmarks/reference.py).",
     ]
     if quick:
         lines += ["", "**This file was written with `--quick`**: see each section's mode."]

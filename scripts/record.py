@@ -5,7 +5,8 @@
 Every stage output is DVC-cached (so that the run cache can share any stage: see README, "DVC"),
 which keeps results/ out of git. The record is how a run's results reach a reader of the repository:
 every output under results/ that dvc.lock lists, copied to record/results/ with the same relative
-paths (the report's figure links keep working), and dvc.lock itself as record/dvc.lock. Each copied
+paths (the report's figure links keep working), and dvc.lock itself as record/dvc.lock; and README.md's
+per-stage time table is rewritten from the record's timing files. Each copied
 file or directory has the md5 that dvc.lock recorded for it, so the record is what the pipeline
 produced and nothing else; ``check_record`` (run by the tests on the committed record) says so.
 """
@@ -13,6 +14,7 @@ produced and nothing else; ``check_record`` (run by the tests on the committed r
 from __future__ import annotations
 
 import argparse
+import re
 import shutil
 import sys
 import tempfile
@@ -21,6 +23,9 @@ from pathlib import Path
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from mop_core.timings import stage_time_table  # noqa: E402
 
 
 def recorded_outputs(lock: dict) -> dict[str, str]:
@@ -60,6 +65,21 @@ def check_record(record: Path) -> list[str]:
     return problems
 
 
+README_BLOCK = re.compile(r"(<!-- timings:record -->\n).*?(<!-- /timings:record -->)", re.S)
+
+
+def timing_table(record: Path) -> str:
+    """The per-stage seconds of the recorded run (its ``results/timings``), as the README shows them."""
+    return stage_time_table(record / "results" / "timings")
+
+
+def readme_with_timings(readme: str, record: Path) -> str:
+    """``readme`` with its ``timings:record`` block replaced by :func:`timing_table` of ``record``."""
+    if not README_BLOCK.search(readme):
+        raise SystemExit("error: README.md: the <!-- timings:record --> ... <!-- /timings:record --> block is missing")
+    return README_BLOCK.sub(lambda m: m.group(1) + timing_table(record) + "\n" + m.group(2), readme)
+
+
 def write_record(root: Path, record: Path) -> int:
     lock_path = root / "dvc.lock"
     if not lock_path.is_file():
@@ -86,7 +106,10 @@ def write_record(root: Path, record: Path) -> int:
     if record.exists():  # replace the old record only once the new one is complete
         shutil.rmtree(record)
     staging.rename(record)
-    print(f"recorded {len(outputs)} outputs of dvc.lock under {record}")
+    readme = root / "README.md"
+    if readme.is_file():
+        readme.write_text(readme_with_timings(readme.read_text(), record))
+    print(f"recorded {len(outputs)} outputs of dvc.lock under {record}; README.md's time table rewritten")
     return 0
 
 

@@ -12,13 +12,19 @@ import sys
 from conftest import ROOT
 
 sys.path.insert(0, str(ROOT / "scripts"))
-from record import check_record, recorded_outputs  # noqa: E402
+from record import check_record, readme_with_timings, recorded_outputs, timing_table  # noqa: E402
 
 RECORD = ROOT / "record"
 
 
 def test_the_record_is_exactly_what_its_dvc_lock_describes():
     assert check_record(RECORD) == []
+
+
+def test_the_readmes_time_table_is_the_records_generated_one():
+    readme = (ROOT / "README.md").read_text()
+    assert readme_with_timings(readme, RECORD) == readme, "rerun `python scripts/record.py`"
+    assert timing_table(RECORD) in readme
 
 
 def test_the_record_holds_the_report_and_the_headline_numbers():
