@@ -44,13 +44,12 @@ from typing import Callable
 
 import numpy as np
 import torch
-import yaml
+from bench_pbrl import pbrl_config, random_batch
 from reference import HOW_TO_GET, REFERENCE_COMMIT, ReferenceError, load, on_cpu, reference_dir
 from torch import nn
 
 from mop_core.agents.pbrl import PBRL, PBRLConfig
 from mop_core.agents.td3 import TD3, TD3Config
-from mop_core.config import from_mapping
 from mop_core.data import Batch
 from mop_core.data.buffer import TransitionTensors
 from mop_core.distill.distiller import DistillConfig, Distiller
@@ -90,16 +89,6 @@ def compare(name: str, reference: Callable[[], None], mop: Callable[[], None], p
     ratios = [r / m for r, m in zip(ref_ms, mop_ms)]
     return Comparison(name, statistics.median(ref_ms), statistics.median(mop_ms), statistics.median(ratios),
                       min(ratios), max(ratios))
-
-
-def profile(name: str) -> dict:
-    return yaml.safe_load((ROOT / name).read_text())
-
-
-def random_batch(n: int, seed: int = 0) -> Batch:
-    g = torch.Generator().manual_seed(seed)
-    return Batch(torch.randn(n, OBS, generator=g), torch.rand(n, ACT, generator=g) * 2 - 1, torch.rand(n, generator=g),
-                 torch.randn(n, OBS, generator=g), torch.zeros(n))
 
 
 def as_reference_batch(batch: Batch, gamma: float = 0.99) -> tuple[np.ndarray, ...]:
@@ -235,8 +224,7 @@ def main() -> None:
         sys.exit(str(err))
     configure_compute(args.threads)
     warnings.filterwarnings("ignore")  # the reference's DataLoader asks for pinned memory without a GPU
-    thesis = from_mapping(PBRLConfig, profile("profiles/thesis.yaml")["train_teachers"]["pbrl"], "pbrl")
-    quick = from_mapping(PBRLConfig, profile("params.yaml")["train_teachers"]["pbrl"], "pbrl")
+    thesis, quick = pbrl_config(ROOT / "profiles" / "thesis.yaml"), pbrl_config(ROOT / "params.yaml")
     k = args.blocks
     print(f"torch {torch.__version__}, {args.threads} thread(s); reference {REFERENCE_COMMIT[:12]}; "
           f"{k} alternating blocks per row; one process, configured as the stages configure theirs "
