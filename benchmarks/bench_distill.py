@@ -4,6 +4,8 @@ Prints, at the quick (params.yaml) and thesis (profiles/thesis.yaml) student and
 - distillation steps/s (MSE loss, 2 tasks) with the teachers' actions cached once per state (what
   the distill stage does) and with the frozen teachers re-run on every batch (what the reference
   code did), and their ratio;
+- a group of R = 1, 2, 4, 8 students trained as one vectorised model (the distill stage's seeds):
+  time per update of the group over one student's;
 - evaluation env steps/s of a student policy: one walker at a time vs ``rollout_envs`` walkers
   stepped together (one batched policy call per step), and their ratio.
 
@@ -47,26 +49,32 @@ class RecomputingDistiller(Distiller):
         self.teachers = teachers
 
     def loss(self, rows, tasks=None):
-        tasks = list(range(len(self.targets))) if tasks is None else list(tasks)
-        live = list(self.targets)
-        for t, r in zip(tasks, rows):
-            target = self.targets[t]
-            live[t] = TaskStates(target.task, target.states[r], teacher_outputs(self.teachers[t], target.states[r])[0],
-                                 None, target.source)
-        cached, self.targets = self.targets, live
+        tasks = list(range(len(self.tasks))) if tasks is None else list(tasks)
+        cached = self.targets
+        live = [list(run) for run in cached]
+        for run, run_rows in enumerate(rows):
+            for t, r in zip(tasks, run_rows):
+                target = cached[run][t]
+                live[run][t] = TaskStates(target.task, target.states[r],
+                                          teacher_outputs(self.teachers[t], target.states[r])[0], None, target.source)
+        self.targets = live
         try:
-            return super().loss([torch.arange(len(r)) for r in rows], tasks)
+            return super().loss([[torch.arange(len(r)) for r in run_rows] for run_rows in rows], tasks)
         finally:
             self.targets = cached
 
 
-def distill_rates(name: str, config: DistillConfig, teacher_sizes: tuple[int, ...], steps: int) -> None:
+def _targets(teacher_sizes: tuple[int, ...], device: str = "cpu") -> tuple[list[torch.nn.Module], list[TaskStates]]:
     torch.manual_seed(0)
     teachers = [DeterministicActor(24, 6, teacher_sizes).requires_grad_(False) for _ in range(2)]
     states = [torch.randn(STATES, 24).numpy() for _ in teachers]
-    targets = [task_states(f"task{i}", s, t, {}) for i, (s, t) in enumerate(zip(states, teachers))]
-    cached = Distiller(config, targets, 24, 6, seed=0)
-    live = RecomputingDistiller(teachers, config, targets, 24, 6, seed=0)
+    return teachers, [task_states(f"task{i}", s, t, {}, device) for i, (s, t) in enumerate(zip(states, teachers))]
+
+
+def distill_rates(name: str, config: DistillConfig, teacher_sizes: tuple[int, ...], steps: int) -> None:
+    teachers, targets = _targets(teacher_sizes)
+    cached = Distiller(config, [targets], 24, 6, [0])
+    live = RecomputingDistiller(teachers, config, [targets], 24, 6, [0])
 
     def run(d):
         return lambda: [d.update() for _ in range(steps)]
@@ -75,6 +83,27 @@ def distill_rates(name: str, config: DistillConfig, teacher_sizes: tuple[int, ..
     print(f"{name}: distill steps/s (student {list(config.student.hidden_sizes)}, teacher {list(teacher_sizes)}, "
           f"batch {config.batch_size}/task x 2 tasks): cached {fast:.0f}, recomputed {slow:.0f}, "
           f"ratio {fast / slow:.2f}x")
+
+
+def group_rates(name: str, config: DistillConfig, teacher_sizes: tuple[int, ...], steps: int,
+                runs: tuple[int, ...] = (1, 2, 4, 8), device: str = "cpu") -> dict[int, float]:
+    """Seconds per update of a group of R students (each run its own seed and sampling stream) over
+    seconds per update of one student: the cost of R seeds trained as one model, relative to one."""
+    _, targets = _targets(teacher_sizes, device)
+    seconds = {}
+    for r in runs:
+        group = Distiller(config, [targets] * r, 24, 6, list(range(r)), device=device)
+        seconds[r] = 1.0 / rate(lambda: ([group.update() for _ in range(steps)], _sync(device)), steps)
+    cells = ", ".join(f"R={r}: {seconds[r] / seconds[1]:.2f}x ({seconds[1] * r / seconds[r]:.2f}x per run)"
+                      for r in runs)
+    print(f"{name}: student group (MSE, {list(config.student.hidden_sizes)}, batch {config.batch_size}/task x 2 "
+          f"tasks, {device}) time per update / one run's: {cells}; one run {1e3 * seconds[1]:.2f} ms")
+    return seconds
+
+
+def _sync(device: str) -> None:
+    if device.startswith("cuda"):
+        torch.cuda.synchronize()
 
 
 def rollout_rates(envs: int, hidden: tuple[int, ...], episode_length: int = 200) -> None:
@@ -99,6 +128,8 @@ def main() -> None:
     thesis, thesis_teacher, _ = profile(ROOT / "profiles" / "thesis.yaml")
     distill_rates("quick", quick, quick_teacher, steps=100)
     distill_rates("thesis", thesis, thesis_teacher, steps=20)
+    group_rates("quick", quick, quick_teacher, steps=50)
+    group_rates("thesis", thesis, thesis_teacher, steps=10)
     rollout_rates(envs, quick.student.hidden_sizes)
 
 

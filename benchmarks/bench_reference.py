@@ -204,7 +204,7 @@ def student_row(ref, name: str, loss: str, batch_size: int, teacher_width: int, 
     critics = [EnsembleCritic(OBS, ACT, (teacher_width, teacher_width), 5) for _ in range(tasks)]
     config = DistillConfig(loss=loss, student=StudentConfig(hidden_sizes=(256, 256)), learning_rate=1e-4,
                            batch_size=batch_size, step_per_task=True)
-    ours = Distiller(config, targets, OBS, ACT, seed=0, critics=critics if loss == "q" else None)
+    ours = Distiller(config, [targets], OBS, ACT, [0], critics=critics if loss == "q" else None)
     return compare(name, reference_update, ours.update, per_block, blocks)
 
 

@@ -67,14 +67,14 @@ def probe_overhead(name: str, path: Path, states: int = 100_000) -> None:
     torch.manual_seed(0)
     teachers = [DeterministicActor(24, 6, (64, 64)).requires_grad_(False) for _ in range(2)]
     targets = [task_states(f"task{i}", torch.randn(states, 24).numpy(), t, {}) for i, t in enumerate(teachers)]
-    distiller = Distiller(config, targets, 24, 6, seed=0)
+    distiller = Distiller(config, [targets], 24, 6, [0])
     steps = 50
     step_rate = rate(lambda: [distiller.update() for _ in range(steps)], steps)
     probes = [t.states[: config.probe_states] for t in targets]
     started = time.perf_counter()
     repeats = 5
     for _ in range(repeats):
-        per_state_tau_by_layer(distiller.student, probes)
+        per_state_tau_by_layer(distiller.student(0), probes)
     probe_seconds = (time.perf_counter() - started) / repeats
     between = eval_every / step_rate
     print(f"{name}: per-state tau on {config.probe_states} states/task x 2 tasks (student "

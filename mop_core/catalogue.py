@@ -70,6 +70,13 @@ class Catalogue:
     teacher_seed: int  # the teacher seed students learn from and cross-task tables show
     teacher_actors: tuple[str, ...]
 
+    def student_batches(self) -> dict[str, list[StudentRun]]:
+        """distill entry (``<loss>-<pairing>``) -> the students it trains together (one per seed)."""
+        batches: dict[str, list[StudentRun]] = {}
+        for run in self.students:
+            batches.setdefault(run.batch, []).append(run)
+        return batches
+
     def student_groups(self) -> dict[str, list[StudentRun]]:
         """group -> its students (one per seed), in grid order."""
         groups: dict[str, list[StudentRun]] = {}
@@ -156,24 +163,28 @@ def build_catalogue(params: Mapping[str, Any]) -> Catalogue:
         students=students, teacher_seed=grid.teacher_seed, teacher_actors=teacher.actors)
 
 
-def student_inputs(run: StudentRun) -> dict:
-    """What a student reads, by content: each teacher checkpoint's SHA-256 and each dataset's content
-    hash. The ``student_inputs`` stage writes one such record per student, and each ``distill`` entry
-    depends on its own record only, so retraining one teacher reruns just the students that learn from
-    it (DVC cannot list a matrix entry's dependencies per entry: treeverse/dvc#8171)."""
-    return {"student": run.name, "tasks": list(run.tasks),
+def student_inputs(runs: list[StudentRun]) -> dict:
+    """What the students of one distill entry read, by content: each teacher checkpoint's SHA-256 and
+    each dataset's content hash (every seed of a (loss, pairing) learns from the same teachers). The
+    ``student_inputs`` stage writes one such record per entry, and each ``distill`` entry depends on
+    its own record only, so retraining one teacher reruns just the students that learn from it (DVC
+    cannot list a matrix entry's dependencies per entry: treeverse/dvc#8171)."""
+    first = runs[0]
+    if any(run.teachers != first.teachers for run in runs):
+        raise ValueError(f"runs: the students of {first.batch} must learn from the same teachers")
+    return {"students": [run.name for run in runs], "tasks": list(first.tasks),
             "teachers": [{"path": t.paths.checkpoint.as_posix(), "sha256": file_sha256(t.paths.checkpoint)}
-                         for t in run.teachers],
+                         for t in first.teachers],
             "datasets": [{"path": t.dataset.as_posix(), "content_sha256": str(read_dataset_attrs(t.dataset)[
-                "content_sha256"])} for t in run.teachers]}
+                "content_sha256"])} for t in first.teachers]}
 
 
-def check_student_inputs(run: StudentRun, record: dict, where: Path) -> None:
+def check_student_inputs(runs: list[StudentRun], record: dict, where: Path) -> None:
     """Refuse to distil from files that changed since ``student_inputs`` recorded them."""
-    now = student_inputs(run)
+    now = student_inputs(runs)
     if record == now:
         return
     changed = [new["path"] for kind in ("teachers", "datasets")
                for old, new in zip(record.get(kind, []), now[kind]) if old != new]
-    what = changed[0] if changed else f"the inputs of student {run.name}"
+    what = changed[0] if changed else f"the inputs of students {runs[0].batch}"
     raise InputFileError(f"{what}: changed since {where} was written; run `dvc repro` (student_inputs first)")

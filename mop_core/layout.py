@@ -60,11 +60,18 @@ def collect_paths(task: str) -> CollectPaths:
     )
 
 
-def run_paths(name: str, family: str) -> RunPaths:
-    """A training run's final checkpoint (DVC output), metrics and curve (results/), resume file and timing."""
-    return RunPaths(checkpoint=DATA / family / f"{name}.pt", metrics=RESULTS / family / "metrics" / f"{name}.json",
-                    curve=RESULTS / family / "curves" / f"{name}.tsv", resume=DATA / "resume" / f"{family}-{name}.pt",
-                    timing=timing_file(family, name))
+def run_paths(name: str, family: str, batch: str | None = None) -> RunPaths:
+    """A training run's final checkpoint (DVC output), metrics and curve (results/), resume file and timing.
+
+    ``batch``: the run is one of a group trained together in one process (students: every seed of a
+    (loss, pairing)); its checkpoint, metrics and curve lie in a folder named after the group (the
+    group's DVC outputs), and the resume file and timing record are the group's."""
+    sub = Path() if batch is None else Path(batch)
+    owner = name if batch is None else batch
+    return RunPaths(checkpoint=DATA / family / sub / f"{name}.pt",
+                    metrics=RESULTS / family / "metrics" / sub / f"{name}.json",
+                    curve=RESULTS / family / "curves" / sub / f"{name}.tsv",
+                    resume=DATA / "resume" / f"{family}-{owner}.pt", timing=timing_file(family, owner))
 
 
 def timing_file(stage: str, name: str | None = None) -> Path:
@@ -72,14 +79,15 @@ def timing_file(stage: str, name: str | None = None) -> Path:
     return TIMINGS / stage / f"{name}.json" if name is not None else TIMINGS / f"{stage}.json"
 
 
-def tau_curves_dir(name: str) -> Path:
-    """results/students/tau/<student>/: per_state_tau_<a|b>_layer<k>.tsv (step, tau), one curve each."""
-    return RESULTS / "students" / "tau" / name
+def tau_curves_dir(name: str, batch: str) -> Path:
+    """results/students/tau/<group>/<student>/: per_state_tau_<a|b>_layer<k>.tsv (step, tau), one curve each."""
+    return RESULTS / "students" / "tau" / batch / name
 
 
-def student_inputs_file(name: str) -> Path:
-    """The student_inputs stage's record of what student ``name`` reads (its distill entry's dependency)."""
-    return DATA / "student_inputs" / f"{name}.json"
+def student_inputs_file(batch: str) -> Path:
+    """The student_inputs stage's record of what the students of group ``batch`` read (its distill
+    entry's dependency)."""
+    return DATA / "student_inputs" / f"{batch}.json"
 
 
 def stage_dir(stage: str) -> Path:

@@ -154,9 +154,10 @@ def with_task_id(obs: torch.Tensor, task_index: int | torch.Tensor, num_tasks: i
 
 
 class _EnsembleReLUMLP(torch.autograd.Function):
-    """E ReLU networks on one shared input, member by member, with a hand-written backward.
+    """E ReLU networks on one shared input ``x [B, in]`` (or one input per member, ``x [E, B, in]``),
+    member by member, with a hand-written backward.
 
-    Forward: for each member e, ``h_0 = x``, ``h_k = relu(h_{k-1} W_k[e] + b_k[e])`` (the ReLU in
+    Forward: for each member e, ``h_0 = x`` (or ``x[e]``), ``h_k = relu(h_{k-1} W_k[e] + b_k[e])`` (the ReLU in
     place on the product), output ``h_{L-1} W_L[e] + b_L[e]``. Backward, from ``g = dL/dout[e]``,
     for k = L..1: ``dW_k[e] = h_{k-1}^T g``, ``db_k[e] = sum_rows g``, then ``g <- g W_k[e]^T``
     masked to zero where ``h_{k-1} = 0`` (the ReLU's derivative), the mask applied in place on ``g``.
@@ -173,7 +174,7 @@ class _EnsembleReLUMLP(torch.autograd.Function):
         weights, biases = params[:layers], params[layers:]
         outputs, saved = [], []
         for e in range(weights[0].shape[0]):
-            h = x
+            h = x if x.dim() == 2 else x[e]
             for k in range(layers):
                 h = torch.addmm(biases[k][e], h, weights[k][e])
                 if k < layers - 1:
@@ -197,12 +198,14 @@ class _EnsembleReLUMLP(torch.autograd.Function):
         grad_x = torch.zeros_like(x) if need_x else None
         for e in range(members):
             hidden = saved[e * (layers - 1):(e + 1) * (layers - 1)]
+            x_e = x if x.dim() == 2 else x[e]
+            grad_x_e = grad_x if grad_x is None or x.dim() == 2 else grad_x[e]
             g = grad_out[e]
             rows = _rows_with_gradient(g)
             if rows is not None:
                 g = g.index_select(0, rows)
             for k in range(layers - 1, -1, -1):
-                below = hidden[k - 1] if k > 0 else x
+                below = hidden[k - 1] if k > 0 else x_e
                 if rows is not None:
                     below = below.index_select(0, rows)
                 if need_w:
@@ -212,9 +215,9 @@ class _EnsembleReLUMLP(torch.autograd.Function):
                     g = torch.mm(g, weights[k][e].t())
                     torch.ops.aten.threshold_backward.grad_input(g, below, 0.0, grad_input=g)
                 elif need_x and rows is None:
-                    grad_x.addmm_(g, weights[0][e].t())
+                    grad_x_e.addmm_(g, weights[0][e].t())
                 elif need_x:
-                    grad_x.index_add_(0, rows, torch.mm(g, weights[0][e].t()))
+                    grad_x_e.index_add_(0, rows, torch.mm(g, weights[0][e].t()))
         return (grad_x, *(grad_w if need_w else [None] * layers), *(grad_b if need_w else [None] * layers))
 
 
@@ -243,7 +246,8 @@ def _plain_relu_mlp(net: nn.Sequential) -> bool:
 
 def per_member_forward(net: nn.Sequential, x: torch.Tensor, members: int | None = None) -> torch.Tensor:
     """``net(x expanded to [E, B, in])`` computed one member at a time with plain matrix products;
-    with ``members=m`` only the first m members, ``[m, B, out]``.
+    with ``members=m`` only the first m members, ``[m, B, out]``. ``x`` may also hold one batch per
+    member, ``[E, B, in]`` (runs of a group with their own data: :class:`mop_core.distill.student.StudentGroup`).
 
     Same result and gradients as the batched path (tested). On CPU, E plain GEMMs over a large
     batch beat one batched GEMM (``bmm``) (benchmarks/bench_pbrl.py). A plain ReLU network runs
@@ -262,7 +266,7 @@ def per_member_forward(net: nn.Sequential, x: torch.Tensor, members: int | None 
                if isinstance(layer, (EnsembleLinear, EnsembleLayerNorm)) else None for layer in net]
     outputs = []
     for e in range(count):
-        h = x
+        h = x if x.dim() == 2 else x[e]
         for index, (layer, params) in enumerate(zip(net, unbound)):
             if isinstance(layer, EnsembleLinear):
                 h = torch.addmm(params[1][e], h, params[0][e])
@@ -274,6 +278,15 @@ def per_member_forward(net: nn.Sequential, x: torch.Tensor, members: int | None 
                 h = layer(h)
         outputs.append(h)
     return torch.stack(outputs)
+
+
+MEMBER_LOOP_WORK = 2 ** 25  # rows * widest_hidden^2 from which a member loop beats bmm on a CPU (bench_pbrl)
+
+
+def member_loop_pays(rows: int, widest: int, device: torch.device, work: int = MEMBER_LOOP_WORK) -> bool:
+    """Whether an ensemble over ``rows`` rows per member runs faster as E plain GEMMs per layer
+    (:func:`per_member_forward`) than as one batched GEMM: on a CPU from ``rows * widest^2 >= work``."""
+    return device.type == "cpu" and rows * widest ** 2 >= work
 
 
 class EnsembleCritic(nn.Module):
@@ -289,7 +302,7 @@ class EnsembleCritic(nn.Module):
     # measured on 2 CPU cores, forward + backward (benchmarks/bench_pbrl.py): 5 members x 256 wide
     # run 1.08x faster member by member at 512 rows, 1.15x at 1024, 1.44x at 7168; 5 x 128 at 768
     # rows and 2 x 256 at 128 rows run faster batched (0.86x, 0.62x); 2 x 1024 at 1024 rows is even.
-    member_loop_work = 2 ** 25
+    member_loop_work = MEMBER_LOOP_WORK
 
     def __init__(self, obs_dim: int, act_dim: int, hidden_sizes: Sequence[int], ensemble_size: int,
                  layer_norm: bool = False):
@@ -300,7 +313,7 @@ class EnsembleCritic(nn.Module):
 
     def member_by_member(self, rows: int, device: torch.device) -> bool:
         """Whether a shared batch of ``rows`` rows runs as E plain GEMMs per layer (else one ``bmm``)."""
-        return device.type == "cpu" and rows * self.widest ** 2 >= self.member_loop_work
+        return member_loop_pays(rows, self.widest, device, self.member_loop_work)
 
     def forward(self, obs: torch.Tensor, act: torch.Tensor) -> torch.Tensor:
         x = torch.cat([obs, act], dim=-1)

@@ -4,7 +4,8 @@
 - :class:`TeacherRun`: a PBRL teacher per (task, level, actor type, seed);
 - :class:`MultitaskRun`: the naive multi-task PBRL baseline per (level, seed);
 - :class:`StudentRun`: a distilled student per (loss, pairing, seed), with the teachers it learns
-  from (one per study task).
+  from (one per study task); every seed of a (loss, pairing) trains in one distill entry, as one
+  vectorised group (its ``batch``).
 
 Each run has a ``name`` (its files), a ``group`` (the eval stage's key: the runs whose returns form
 one confidence interval, e.g. every seed of a student) and its file paths (mop_core.layout). The
@@ -37,6 +38,11 @@ def multitask_group(level: str) -> str:
 
 def student_group(loss: str, pairing: str) -> str:
     return f"student_{loss}_{pairing}"
+
+
+def student_batch(loss: str, pairing: str) -> str:
+    """The distill entry (and file folder) of every seed of a (loss, pairing): ``<loss>-<pairing>``."""
+    return f"{loss}-{pairing}"
 
 
 def structure_group(loss: str, pairing: str) -> str:
@@ -134,17 +140,23 @@ class StudentRun:
         return f"{self.loss}-{self.pairing}-{self.seed}"
 
     @property
+    def batch(self) -> str:
+        """The distill entry that trains this student with every other seed of its (loss, pairing), as
+        one vectorised group: ``<loss>-<pairing>``, the folder of its files."""
+        return student_batch(self.loss, self.pairing)
+
+    @property
     def group(self) -> str:
         return student_group(self.loss, self.pairing)
 
     @property
     def paths(self) -> RunPaths:
-        return run_paths(self.name, self.family)
+        return run_paths(self.name, self.family, self.batch)
 
     @property
     def tau_dir(self) -> Path:
-        """results/students/tau/<name>/: one ``dvc plots`` curve per logged per-state tau."""
-        return tau_curves_dir(self.name)
+        """results/students/tau/<batch>/<name>/: one ``dvc plots`` curve per logged per-state tau."""
+        return tau_curves_dir(self.name, self.batch)
 
     @property
     def tasks(self) -> tuple[str, ...]:

@@ -104,12 +104,12 @@ def train_teacher(task: str, source: DataSource, config: TeacherConfig, seed: in
     """
     check_task_list([task], "task")
     device = torch.device(device)
-    data, summary = load_source(source, config.episode_length, "cpu")
+    data, summary = load_source(source, config.episode_length, device)  # in memory on the learner's device
     check_batch_fits(config, summary)
     level = summary["level"]
     seeds = run_seeds(study_seed, [task, summary["source_task"], level], seed)
     agent = PBRL(config.pbrl, OBS_DIM, ACT_DIM, seeds["agent"], device)
-    sampler = torch.Generator().manual_seed(seeds["sampler"])
+    sampler = torch.Generator(device).manual_seed(seeds["sampler"])  # indices drawn where the data lies
     batch_size = config.pbrl.batch_size
     policy = numpy_policy(agent.actor, device)
     sched = config.schedule
@@ -120,7 +120,7 @@ def train_teacher(task: str, source: DataSource, config: TeacherConfig, seed: in
     fingerprint = run_fingerprint({"task": task, "config": to_dict(config), "seed": seed, "study_seed": study_seed,
                                 "data": summary["content_sha256"], "reward_task": source.reward_task})
     curve, seconds, resumed_from = train_loop(
-        agent, lambda: agent.update(data.sample(batch_size, sampler)), evaluate, sched, seeds, sampler, paths,
+        agent, lambda: agent.update(data.sample(batch_size, sampler)), evaluate, sched, seeds, sampler, paths.resume,
         fingerprint, f"teacher {task}-{level}-{seed}", progress)
     final = episode_returns(policy, task, [seeds["final_eval"] + i for i in range(sched.final_eval_episodes)],
                             config.episode_length, sched.rollout_envs)
@@ -152,13 +152,13 @@ def train_multitask(tasks: Sequence[str], sources: Sequence[DataSource], config:
     if len(sources) != len(tasks):
         raise ValueError(f"sources: expected one per task ({len(tasks)}), got {len(sources)}")
     device = torch.device(device)
-    loaded = [load_source(source, config.episode_length, "cpu") for source in sources]
+    loaded = [load_source(source, config.episode_length, device) for source in sources]
     for _, summary in loaded:
         check_batch_fits(config, summary)
     level = "+".join(summary["level"] for _, summary in loaded)
     seeds = run_seeds(study_seed, ["multitask", *tasks, level], seed)
     agent = MultiTaskPBRL(config.pbrl, tasks, OBS_DIM, ACT_DIM, seeds["agent"], device)
-    sampler = torch.Generator().manual_seed(seeds["sampler"])
+    sampler = torch.Generator(device).manual_seed(seeds["sampler"])
     sched = config.schedule
     policies = [numpy_policy(agent.actor, device, i, len(tasks)) for i in range(len(tasks))]
 
@@ -181,7 +181,7 @@ def train_multitask(tasks: Sequence[str], sources: Sequence[DataSource], config:
 
     fingerprint = run_fingerprint({"tasks": tasks, "config": to_dict(config), "seed": seed, "study_seed": study_seed,
                                 "data": [s["content_sha256"] for _, s in loaded]})
-    curve, seconds, resumed_from = train_loop(agent, update, evaluate, sched, seeds, sampler, paths, fingerprint,
+    curve, seconds, resumed_from = train_loop(agent, update, evaluate, sched, seeds, sampler, paths.resume, fingerprint,
                                               f"multitask {level}-{seed}", progress)
     final_seeds = [seeds["final_eval"] + i for i in range(sched.final_eval_episodes)]
     metrics: dict = {"tasks": list(tasks), "level": level, "seed": seed, "gradient_steps_per_task": sched.steps}

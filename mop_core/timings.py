@@ -27,8 +27,11 @@ def machine_facts(device: str | torch.device = "cpu") -> dict[str, Any]:
     """What a time depends on besides the work: the device, torch's threads, the cores, the packages
     (one pip-style string, ``torch==2.13.0 dm-control==1.0.50 ...``: one column in ``dvc metrics show``)."""
     versions = " ".join(f"{name}=={version}" for name, version in package_versions().items())
-    return {"device": str(device), "threads": torch.get_num_threads(), "cpus": os.cpu_count() or 0,
-            "versions": versions}
+    facts = {"device": str(device), "threads": torch.get_num_threads(), "cpus": os.cpu_count() or 0,
+             "versions": versions}
+    if torch.device(device).type == "cuda":  # which card a GPU time was measured on
+        facts["gpu"] = torch.cuda.get_device_name(torch.device(device))
+    return facts
 
 
 def write_timing(path: str | os.PathLike, seconds: float, device: str | torch.device = "cpu",
@@ -51,7 +54,8 @@ def stage_time_table(root: str | os.PathLike) -> str:
     for path in root.rglob("*.json"):
         stage = path.relative_to(root).parts[0].removesuffix(".json")
         total, runs = rows.get(stage, (0.0, 0))
-        rows[stage] = (total + float(json.loads(path.read_text()).get("seconds", 0.0)), runs + 1)
+        record = json.loads(path.read_text())  # a group of runs trained together: one file, "runs" of them
+        rows[stage] = (total + float(record.get("seconds", 0.0)), runs + int(record.get("runs", 1)))
     order = {stage: i for i, stage in enumerate(PIPELINE_ORDER)}
     rows = dict(sorted(rows.items(), key=lambda item: (order.get(item[0], len(order)), item[0])))
     lines = ["| stage | runs | seconds |", "|---|---|---|"]

@@ -62,9 +62,12 @@ def non_finite_tensor(state) -> str | None:
 
 
 def train_loop(agent, update: Callable[[], dict], evaluate: Callable[[list[int]], dict[str, float]],
-               schedule: TrainSchedule, seeds: dict[str, int], sampler: torch.Generator, paths: RunPaths,
+               schedule: TrainSchedule, seeds: dict[str, int], sampler: torch.Generator | None, resume: Path,
                fingerprint: str, desc: str, progress: bool) -> tuple[list[dict], float, int]:
-    """Run ``update`` to ``schedule.steps`` with periodic evaluation and resume checkpoints.
+    """Run ``update`` to ``schedule.steps`` with periodic evaluation and resume checkpoints (``resume``).
+
+    ``sampler``: a generator outside the agent whose state the resume file keeps (None: the agent's
+    ``state_dict`` holds every generator it draws from).
 
     Returns the learning curve rows, the training seconds and the step it resumed from (0 if none).
     A NaN or infinite loss or weight stops the run with :class:`TrainingDivergedError` naming
@@ -78,13 +81,14 @@ def train_loop(agent, update: Callable[[], dict], evaluate: Callable[[list[int]]
     seconds_before = 0.0
     resumed_from = 0
     losses: dict[str, list[float]] = {}
-    state = try_resume(paths.resume, fingerprint)
+    state = try_resume(resume, fingerprint)
     if state is not None:
         agent.load_state_dict(state["agent"])
-        sampler.set_state(state["sampler"])
+        if sampler is not None:
+            sampler.set_state(state["sampler"])
         curve, seconds_before, resumed_from = state["curve"], state["seconds"], state["step"]
         losses = state.get("losses", {})
-    kept = f"; the resume file {paths.resume} (if any) keeps the last good state"
+    kept = f"; the resume file {resume} (if any) keeps the last good state"
     metrics = StepMetrics(desc, kept, losses)
     eval_seeds = [seeds["eval"] + i for i in range(schedule.eval_episodes)]
     started = time.perf_counter()
@@ -104,10 +108,11 @@ def train_loop(agent, update: Callable[[], dict], evaluate: Callable[[list[int]]
             if bad is not None:
                 raise TrainingDivergedError(f"{desc}: non-finite weights ({bad}) at step {step}; stopped{kept}")
         if step % schedule.checkpoint_every == 0 and step < schedule.steps:
-            save_checkpoint(paths.resume, {"kind": RESUME_KIND, "fingerprint": fingerprint, "step": step,
-                                           "agent": agent.state_dict(), "sampler": sampler.get_state(),
-                                           "curve": curve, "losses": metrics.values,
-                                           "seconds": seconds_before + time.perf_counter() - started})
+            save_checkpoint(resume, {"kind": RESUME_KIND, "fingerprint": fingerprint, "step": step,
+                                     "agent": agent.state_dict(),
+                                     "sampler": None if sampler is None else sampler.get_state(),
+                                     "curve": curve, "losses": metrics.values,
+                                     "seconds": seconds_before + time.perf_counter() - started})
     bar.close()
     return curve, seconds_before + time.perf_counter() - started, resumed_from
 

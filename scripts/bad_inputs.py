@@ -229,7 +229,7 @@ def cases() -> list[Case]:  # noqa: C901 (a flat list of cases)
         p.append(Case(f"distill {' '.join(args)}", "distill", lambda ws: None, culprit, tuple(changed)))
     # files
     ds, rl = "data/datasets/stand-medium.hdf5", "data/relabelled/stand-medium.hdf5"
-    teacher_pt, student_pt = "data/teachers/stand-medium-deterministic-0.pt", "data/students/mse-medium-0.pt"
+    teacher_pt, student_pt = "data/teachers/stand-medium-deterministic-0.pt", "data/students/mse-medium/mse-medium-0.pt"
     for how, fault in [("empty", empty), ("truncated", truncate), ("garbled", garble)]:
         p.append(Case(f"dataset {how}", "relabel", fault(ds), ds))
         p.append(Case(f"relabel file {how}", "teacher", fault(rl), rl))
@@ -245,10 +245,11 @@ def cases() -> list[Case]:  # noqa: C901 (a flat list of cases)
         p.append(Case(f"collect metrics {how}", "eval", fault("results/collect/metrics.json"),
                       "results/collect/metrics.json"))
         p.append(Case(f"student metrics {how} (shared_computation)", "shared_computation",
-                      fault("results/students/metrics/mse-medium-0.json"),
-                      "results/students/metrics/mse-medium-0.json"))
-        p.append(Case(f"student curve {how} (eval)", "eval", fault("results/students/curves/mse-medium-0.tsv"),
-                      "results/students/curves/mse-medium-0.tsv"))
+                      fault("results/students/metrics/mse-medium/mse-medium-0.json"),
+                      "results/students/metrics/mse-medium/mse-medium-0.json"))
+        p.append(Case(f"student curve {how} (eval)", "eval",
+                      fault("results/students/curves/mse-medium/mse-medium-0.tsv"),
+                      "results/students/curves/mse-medium/mse-medium-0.tsv"))
         p.append(Case(f"eval metrics {how} (report)", "report", fault("results/eval/metrics.json"),
                       "results/eval/metrics.json"))
     for how in ("tamper", "shorten", "drop_key", "nan", "attr"):

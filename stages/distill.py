@@ -1,13 +1,18 @@
-"""distill stage: one multi-task student per (loss, pairing, seed), a `matrix` entry each.
+"""distill stage: the multi-task students of one (loss, pairing), every seed trained together, a `matrix` entry each.
 
-    python stages/distill.py --loss mse --pairing medium --seed 0
+    python stages/distill.py --loss mse --pairing medium [--seeds 0 2]
 
-Reads the teachers the catalogue names for the student (per study task: the pairing's level, the
-loss's actor type, seed ``distill.teacher_seed``) and, for offline states, the datasets they were
-trained on, after checking them against data/student_inputs/<name>.json (the student_inputs stage's
-record, this entry's only data dependency in dvc.yaml). Writes data/students/<loss>-<pairing>-<seed>.pt, the metrics
-results/students/metrics/<name>.json, the learning curve results/students/curves/<name>.tsv, one curve
-per logged per-state tau in results/students/tau/<name>/ and the timing results/timings/students/<name>.json.
+Trains one student per seed of ``distill.seeds`` (or of ``--seeds``, a subset: a group of one reruns a
+single seed) as one vectorised group (mop_core.distill.distiller.Distiller: each run its own
+initialisation, states and sampling stream; the same result as the seeds trained one by one). Reads
+the teachers the catalogue names for the students (per study task: the pairing's level, the loss's
+actor type, seed ``distill.teacher_seed``) and, for offline states, the datasets they were trained on,
+after checking them against data/student_inputs/<loss>-<pairing>.json (the student_inputs stage's
+record, this entry's only data dependency in dvc.yaml). Writes, per seed, the student
+data/students/<loss>-<pairing>/<loss>-<pairing>-<seed>.pt, its metrics
+results/students/metrics/<loss>-<pairing>/<name>.json, its learning curve
+results/students/curves/<loss>-<pairing>/<name>.tsv and one curve per logged per-state tau in
+results/students/tau/<loss>-<pairing>/<name>/; and the group's timing results/timings/students/<loss>-<pairing>.json.
 """
 
 from __future__ import annotations
@@ -21,9 +26,16 @@ from mop_core.config import ConfigError, keys_under, require
 from mop_core.data import read_json
 from mop_core.distill.distiller import distill_config
 from mop_core.distill.losses import LOSSES
-from mop_core.distill.run import StudentSources, check_student_files, distill_student, print_summary, write_tau_curves
+from mop_core.distill.run import (
+    StudentSources,
+    check_student_files,
+    distill_students,
+    print_summary,
+    write_tau_curves,
+)
 from mop_core.layout import student_inputs_file
 from mop_core.plots import read_curve
+from mop_core.runs import student_batch
 from mop_core.runtime import configure_compute, progress_enabled, resolve_device
 from mop_core.study import distill_grid, pairing_levels, study_config
 from mop_core.teachers import teacher_config
@@ -33,32 +45,42 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--loss", required=True, choices=tuple(LOSSES))
     parser.add_argument("--pairing", required=True)
-    parser.add_argument("--seed", type=int, required=True)
+    parser.add_argument("--seeds", type=int, nargs="+", default=None,
+                        help="a subset of distill.seeds to train (default: all of them)")
     args = parser.parse_args()
 
     params = load_params()
     study = study_config(params)
     grid, config = distill_grid(params, study, LOSS_ACTORS), distill_config(params, args.loss)
-    require(args.seed >= 0, "--seed", "a non-negative integer", args.seed)
+    seeds = list(grid.seeds) if args.seeds is None else args.seeds
+    require(len(set(seeds)) == len(seeds) and set(seeds) <= set(grid.seeds), "--seeds",
+            f"distinct seeds of distill.seeds {list(grid.seeds)}", seeds)
     if len(study.tasks) < 2:
         raise ConfigError(f"study.tasks: a multi-task student needs at least two tasks, got {list(study.tasks)}")
-    run = make_student(args.loss, args.pairing, args.seed, study.tasks, pairing_levels(args.pairing, study),
-                       grid.teacher_seed)
+    levels = pairing_levels(args.pairing, study)
+    runs = [make_student(args.loss, args.pairing, seed, study.tasks, levels, grid.teacher_seed) for seed in seeds]
+    batch = student_batch(args.loss, args.pairing)
     device = resolve_device(study.device, "study.device")
-    require_inputs([t.paths.checkpoint for t in run.teachers], "train_teachers")
-    require_inputs(run.datasets, "collect")
-    require_inputs([student_inputs_file(run.name)], "student_inputs")
-    check_student_files(run, study.seed, lambda actor: teacher_config(params, study, actor),
-                        student_inputs_file(run.name))
+    require_inputs([t.paths.checkpoint for t in runs[0].teachers], "train_teachers")
+    require_inputs(runs[0].datasets, "collect")
+    require_inputs([student_inputs_file(batch)], "student_inputs")
+    check_student_files(runs, study.seed, lambda actor: teacher_config(params, study, actor),
+                        student_inputs_file(batch))
 
     configure_compute(grid.threads)
-    sources = StudentSources(run.tasks, tuple(t.paths.checkpoint for t in run.teachers), run.datasets)
+    first = runs[0]
+    sources = StudentSources(first.tasks, tuple(t.paths.checkpoint for t in first.teachers), first.datasets)
+    group_paths = first.paths  # the group's resume file and timing record
     with keys_under("distill"):  # sizes checked against the states: distill.batch_size
-        metrics = distill_student(sources, config, grid.schedule, study.episode_length,
-                                  args.seed, study.seed, run.paths, device, progress_enabled(study.progress),
-                                  run.name)
-    write_tau_curves(run.tau_dir, read_curve(run.paths.curve))
-    print_summary(run.name, metrics, read_json(run.paths.timing))
+        records = distill_students(sources, config, grid.schedule, study.episode_length, seeds, study.seed,
+                                   [run.paths for run in runs], group_paths.resume, group_paths.timing, device,
+                                   progress_enabled(study.progress), batch)
+    timing = read_json(group_paths.timing)
+    for run, metrics in zip(runs, records):
+        write_tau_curves(run.tau_dir, read_curve(run.paths.curve))
+        print_summary(run.name, metrics)
+    print(f"{batch}: {len(runs)} students trained together in {timing['seconds']:.0f} s, "
+          f"{timing['steps_per_second']:.0f} group steps/s")
 
 
 if __name__ == "__main__":

@@ -1,12 +1,12 @@
-"""student_inputs stage: for every student, a record of the files it will read, by content hash.
+"""student_inputs stage: per distill entry, a record of the files its students will read, by content hash.
 
     python stages/student_inputs.py
 
-Writes data/student_inputs/<student>.json (mop_core.catalogue.student_inputs): the SHA-256 of each
-teacher checkpoint the student learns from and the content hash of each dataset its states come
-from. Each ``distill`` entry depends on its own record instead of on every teacher, so a retrained
-teacher reruns only its students (this stage takes seconds; a record whose files did not change is
-rewritten byte for byte, and DVC leaves its student alone).
+Writes data/student_inputs/<loss>-<pairing>.json (mop_core.catalogue.student_inputs): the SHA-256 of
+each teacher checkpoint the entry's students (every seed) learn from and the content hash of each
+dataset their states come from. Each ``distill`` entry depends on its own record instead of on every
+teacher, so a retrained teacher reruns only its students (this stage takes seconds; a record whose
+files did not change is rewritten byte for byte, and DVC leaves its students alone).
 """
 
 from __future__ import annotations
@@ -23,9 +23,11 @@ def main() -> None:
     require_inputs(sorted({t.paths.checkpoint for run in catalogue.students for t in run.teachers}),
                    "train_teachers")
     require_inputs(sorted({d for run in catalogue.students for d in run.datasets}), "collect")
-    for run in catalogue.students:
-        write_json(student_inputs_file(run.name), student_inputs(run))
-    print(f"student_inputs: recorded the teachers and datasets of {len(catalogue.students)} students")
+    batches = catalogue.student_batches()
+    for batch, runs in batches.items():
+        write_json(student_inputs_file(batch), student_inputs(runs))
+    print(f"student_inputs: recorded the teachers and datasets of {len(catalogue.students)} students "
+          f"in {len(batches)} distill entries")
 
 
 if __name__ == "__main__":

@@ -14,6 +14,14 @@ torch.set_num_threads(1)
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY_PROFILE = ROOT / "profiles" / "tiny.yaml"
+# The device the learner tests and the tiny dvc repro run on: cpu here and in CI; benchmarks/gpu_check.sh
+# runs the suite with MOP_TEST_DEVICE=cuda on a GPU machine (the CUDA path end to end).
+TEST_DEVICE = os.environ.get("MOP_TEST_DEVICE", "cpu")
+
+
+@pytest.fixture(scope="session")
+def device() -> torch.device:
+    return torch.device(TEST_DEVICE)
 
 
 @pytest.fixture(scope="session")

@@ -74,7 +74,8 @@ def test_run_names_groups_and_files(catalogue):
     assert multitask.reference_group() == "teacher_medium_deterministic"
     student = catalogue.students[2]
     assert student.group == "student_kl_medium" and structure_group("kl", "medium") == "kl_medium"
-    assert student.paths.checkpoint == Path("data/students/kl-medium-0.pt")
+    assert student.paths.checkpoint == Path("data/students/kl-medium/kl-medium-0.pt") and student.batch == "kl-medium"
+    assert student.paths.resume == Path("data/resume/students-kl-medium.pt")  # the group's, shared by its seeds
     assert student.tasks == TASKS and student.levels == ("medium", "medium") and student.teacher_seed == 0
     assert student.datasets == (Path("data/datasets/stand-medium.hdf5"), Path("data/datasets/walk-medium.hdf5"))
     assert cross_group("expert", "walk") == "cross_expert_walk"
@@ -101,8 +102,8 @@ def test_eval_jobs_cover_every_policy_and_the_cross_task_teachers(catalogue):
                      Job(f"cross_medium_{task}", 0, teacher(task, "deterministic"), other)]
     expected += [Job("multitask_medium", 0, Path("data/multitask/medium-0.pt"), task, task) for task in TASKS]
     for loss in ("mse", "q", "kl"):
-        expected += [Job(f"student_{loss}_medium", 0, Path(f"data/students/{loss}-medium-0.pt"), task, task)
-                     for task in TASKS]
+        checkpoint = Path(f"data/students/{loss}-medium/{loss}-medium-0.pt")
+        expected += [Job(f"student_{loss}_medium", 0, checkpoint, task, task) for task in TASKS]
     assert catalogue.eval_jobs() == expected
     assert catalogue.cross_task_teachers() == [TeacherRun("stand", "medium", "deterministic", 0),
                                                TeacherRun("walk", "medium", "deterministic", 0)]
@@ -196,34 +197,40 @@ def test_make_student():
     assert student.name == "q-expert+medium-3" and student.teacher_seed == 2
 
 
+def catalogue_seeds(catalogue) -> list[int]:
+    return sorted({run.seed for run in catalogue.students})
+
+
 def test_student_inputs_record_the_teachers_and_datasets_by_content(catalogue, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # the run paths are relative to the repository root
-    student = catalogue.students[0]
+    batch = catalogue.student_batches()["mse-medium"]
+    student = batch[0]
+    assert [run.name for run in batch] == [f"mse-medium-{seed}" for seed in catalogue_seeds(catalogue)]
     for i, teacher in enumerate(student.teachers):
         teacher.paths.checkpoint.parent.mkdir(parents=True, exist_ok=True)
         teacher.paths.checkpoint.write_bytes(b"teacher %d" % i)
         teacher.dataset.parent.mkdir(parents=True, exist_ok=True)
         with h5py.File(teacher.dataset, "w") as h5:
             h5.attrs["content_sha256"] = f"content-{teacher.task}"
-    record = student_inputs(student)
+    record = student_inputs(batch)
     assert record == {
-        "student": "mse-medium-0", "tasks": ["stand", "walk"],
+        "students": [run.name for run in batch], "tasks": ["stand", "walk"],
         "teachers": [{"path": "data/teachers/stand-medium-deterministic-0.pt",
                       "sha256": hashlib.sha256(b"teacher 0").hexdigest()},
                      {"path": "data/teachers/walk-medium-deterministic-0.pt",
                       "sha256": hashlib.sha256(b"teacher 1").hexdigest()}],
         "datasets": [{"path": "data/datasets/stand-medium.hdf5", "content_sha256": "content-stand"},
                      {"path": "data/datasets/walk-medium.hdf5", "content_sha256": "content-walk"}]}
-    where = Path("data/student_inputs/mse-medium-0.json")
-    check_student_inputs(student, record, where)
+    where = Path("data/student_inputs/mse-medium.json")
+    check_student_inputs(batch, record, where)
     student.teachers[1].paths.checkpoint.write_bytes(b"retrained")
     with pytest.raises(InputFileError) as err:
-        check_student_inputs(student, record, where)
+        check_student_inputs(batch, record, where)
     message = str(err.value)  # names the file that changed and the record
     assert message.startswith("data/teachers/walk-medium-deterministic-0.pt: ") and str(where) in message
     student.teachers[1].paths.checkpoint.write_bytes(b"teacher 1")
-    check_student_inputs(student, record, where)
+    check_student_inputs(batch, record, where)
     with h5py.File(student.teachers[0].dataset, "a") as h5:
         h5.attrs["content_sha256"] = "recollected"
     with pytest.raises(InputFileError, match=r"^data/datasets/stand-medium.hdf5: "):
-        check_student_inputs(student, record, where)
+        check_student_inputs(batch, record, where)

@@ -14,9 +14,9 @@ from mop_core.config import ConfigError
 from mop_core.data import read_dataset
 from mop_core.distill.distiller import DistillConfig, Distiller
 from mop_core.distill.losses import gaussian_kl_per_state, mse_per_state, q_per_state, reduce_ensemble
-from mop_core.distill.run import StudentSources, distill_student, load_student, student_policy
+from mop_core.distill.run import StudentSources, distill_student, distill_students, load_student, student_policy
 from mop_core.distill.states import TaskStates, offline_states, online_states, task_states
-from mop_core.distill.student import Student, StudentConfig
+from mop_core.distill.student import Student, StudentConfig, StudentGroup
 from mop_core.envs import WalkerEnv
 from mop_core.nn import DeterministicActor, EnsembleCritic, GaussianActor
 from mop_core.schedule import TrainSchedule
@@ -143,15 +143,15 @@ def test_every_loss_trains_every_student_parameter_and_leaves_teachers_frozen(lo
     critics = [EnsembleCritic(24, 6, (8,), 3) for _ in targets] if loss == "q" else None
     before = [c.state_dict() for c in critics] if critics else []
     before = [{k: v.clone() for k, v in s.items()} for s in before]
-    distiller = Distiller(DistillConfig(loss=loss, student=TINY, batch_size=8), targets, 24, 6, seed=0,
+    distiller = Distiller(DistillConfig(loss=loss, student=TINY, batch_size=8), [targets], 24, 6, seeds=[0],
                           critics=critics)
-    loss_value, metrics = distiller.loss([distiller._rows(t, 8) for t in range(2)])
+    loss_value, metrics = distiller.loss([[distiller._rows(0, t, 8) for t in range(2)]])
     loss_value.backward()
     metrics = {key: float(value) for key, value in metrics.items()}
-    for name, p in distiller.student.named_parameters():
+    for name, p in distiller.group.named_parameters():
         assert p.grad is not None and p.grad.abs().sum() > 0, name
-    assert set(metrics) >= {"loss", "loss_task0", "loss_task1", "action_mse_task0"}
-    assert metrics["loss"] == pytest.approx((metrics["loss_task0"] + metrics["loss_task1"]) / 2, rel=1e-5)
+    assert set(metrics) >= {"loss@0", "loss_task0@0", "loss_task1@0", "action_mse_task0@0"}
+    assert metrics["loss@0"] == pytest.approx((metrics["loss_task0@0"] + metrics["loss_task1@0"]) / 2, rel=1e-5)
     for _ in range(3):
         distiller.update()
     for critic, state in zip(critics or [], before):
@@ -163,15 +163,15 @@ def test_mse_distillation_fits_the_teachers_and_is_repeatable():
     targets = _targets(2, gaussian=False, n=256)
     config = DistillConfig(loss="mse", student=StudentConfig(hidden_sizes=(64, 64)), learning_rate=3e-3,
                            batch_size=64)
-    a = Distiller(config, targets, 24, 6, seed=3)
-    first = a.update()["loss"]
+    a = Distiller(config, [targets], 24, 6, seeds=[3])
+    first = a.update()["loss@0"]
     for _ in range(300):
-        last = a.update()["loss"]
+        last = a.update()["loss@0"]
     assert last < 0.2 * first
-    b = Distiller(config, targets, 24, 6, seed=3)
+    b = Distiller(config, [targets], 24, 6, seeds=[3])
     for _ in range(301):
         b.update()
-    for x, y in zip(a.student.parameters(), b.student.parameters()):
+    for x, y in zip(a.group.parameters(), b.group.parameters()):
         assert torch.equal(x, y)
 
 
@@ -181,23 +181,105 @@ def test_step_per_task_takes_one_adam_step_per_task_on_that_tasks_rows_only(loss
     targets = _targets(2, gaussian=loss == "kl")
     critics = [EnsembleCritic(24, 6, (8,), 3) for _ in targets] if loss == "q" else None
     config = DistillConfig(loss=loss, student=TINY, batch_size=8, step_per_task=True)
-    distiller = Distiller(config, targets, 24, 6, seed=0, critics=critics)
+    distiller = Distiller(config, [targets], 24, 6, seeds=[0], critics=critics)
     metrics = distiller.update()
     steps = {int(state["step"]) for state in distiller.optimizer.state.values()}
     assert steps == {2} and distiller.updates == 1  # 2 tasks: 2 Adam steps in one update
-    assert metrics["loss"] == pytest.approx((metrics["loss_task0"] + metrics["loss_task1"]) / 2)
+    assert metrics["loss@0"] == pytest.approx((metrics["loss_task0@0"] + metrics["loss_task1@0"]) / 2)
     # the update is exactly a step on task 0's rows alone, then one on task 1's: replay it by hand
-    replay = Distiller(DistillConfig(loss=loss, student=TINY, batch_size=8), targets, 24, 6, seed=0, critics=critics)
+    replay = Distiller(DistillConfig(loss=loss, student=TINY, batch_size=8), [targets], 24, 6, [0], critics)
     for group in replay.optimizer.param_groups:
         group["lr"] = config.learning_rate
     for task in (0, 1):
-        loss_value, _ = replay.loss([replay._rows(task, 8)], [task])
+        loss_value, _ = replay.loss([[replay._rows(0, task, 8)]], [task])
         replay._step(loss_value)
-    for x, y in zip(replay.student.parameters(), distiller.student.parameters()):
+    for x, y in zip(replay.group.parameters(), distiller.group.parameters()):
         assert torch.equal(x, y)
-    one_step = Distiller(DistillConfig(loss=loss, student=TINY, batch_size=8), targets, 24, 6, seed=0, critics=critics)
+    one_step = Distiller(DistillConfig(loss=loss, student=TINY, batch_size=8), [targets], 24, 6, [0], critics)
     one_step.update()
     assert {int(state["step"]) for state in one_step.optimizer.state.values()} == {1}
+
+
+# ---- groups: R students as one vectorised model ------------------------------------------------------------
+@pytest.mark.parametrize("gaussian", [False, True])
+@pytest.mark.parametrize("member_loop", [False, True])
+def test_a_student_group_computes_what_each_of_its_students_computes(gaussian, member_loop, monkeypatch):
+    """Run r of a group, on its own inputs, gives run r's Student's outputs and gradients, whichever
+    path (one bmm per layer, or member by member with the hand-written backward) computes it."""
+    import mop_core.distill.student as student_module
+
+    monkeypatch.setattr(student_module, "member_loop_pays", lambda *args: member_loop)
+    students = []
+    for seed in (0, 1, 2):
+        torch.manual_seed(seed)
+        students.append(Student(TINY, 24, 6, 3, gaussian=gaussian))
+    group = StudentGroup(students)
+    obs = torch.randn(3, 10, 24)
+    task = torch.arange(3).repeat_interleave(4)[:10]
+    out = group.distribution(obs, task) if gaussian else (group(obs, task),)
+    sum(o.pow(2).sum() for o in out).backward()
+    for r, student in enumerate(students):
+        alone = student.distribution(obs[r], task) if gaussian else (student(obs[r], task),)
+        for x, y in zip(out, alone):
+            torch.testing.assert_close(x[r], y)
+        sum(o.pow(2).sum() for o in alone).backward()
+        plain = [m for m in student.actor.net if isinstance(m, torch.nn.Linear)]
+        for layer, lin in zip(group.net[0::2], plain):
+            torch.testing.assert_close(layer.weight.grad[r], lin.weight.grad.t())
+            torch.testing.assert_close(layer.bias.grad[r, 0], lin.bias.grad)
+        member = group.member(r)
+        for x, y in zip(member.state_dict().values(), student.state_dict().values()):
+            assert torch.equal(x, y)
+
+
+def _on(target: TaskStates, device: torch.device) -> TaskStates:
+    std = None if target.teacher_std is None else target.teacher_std.to(device)
+    return TaskStates(target.task, target.states.to(device), target.teacher_actions.to(device), std, target.source)
+
+
+@pytest.mark.parametrize("loss,step_per_task", [("mse", False), ("q", False), ("kl", False), ("mse", True)])
+def test_a_group_of_runs_equals_the_runs_trained_alone(loss, step_per_task, device):
+    """The issue's test: R runs trained as one model end where each run trained alone ends (own seed,
+    own states, own sampling stream), to float rounding."""
+    config = DistillConfig(loss=loss, student=TINY, batch_size=8, learning_rate=3e-3, lr_schedule="cosine",
+                           step_per_task=step_per_task)
+    targets = [[_on(t, device) for t in _targets(2, gaussian=loss == "kl", seed=run)] for run in range(3)]
+    torch.manual_seed(9)
+    critics = [EnsembleCritic(24, 6, (8,), 3) for _ in range(2)] if loss == "q" else None
+    seeds = [4, 7, 11]
+    group = Distiller(config, targets, 24, 6, seeds=seeds, critics=critics, device=device, total_steps=30)
+    alone = [Distiller(config, [t], 24, 6, seeds=[seed], critics=critics, device=device, total_steps=30)
+             for t, seed in zip(targets, seeds)]
+    for _ in range(30):
+        metrics = group.update()
+        single = [run.update() for run in alone]
+    for r, run in enumerate(alone):
+        for x, y in zip(group.student(r).state_dict().values(), run.student(0).state_dict().values()):
+            torch.testing.assert_close(x, y, rtol=1e-4, atol=1e-5)
+        assert float(metrics[f"loss@{r}"]) == pytest.approx(float(single[r]["loss@0"]), rel=1e-4, abs=1e-6)
+
+
+def test_distill_students_as_a_group_writes_each_runs_files_like_separate_runs(tiny_teachers, tmp_path):
+    sources = _sources(tiny_teachers, "deterministic")
+    config = DistillConfig(student=TINY, learning_rate=1e-3, batch_size=16)
+    paths = [_paths(tmp_path / "group" / str(seed)) for seed in (0, 1)]
+    records = distill_students(sources, config, SCHEDULE, 50, [0, 1], 0, paths, tmp_path / "group" / "resume.pt",
+                               tmp_path / "group" / "timing.json")
+    timing = json.loads((tmp_path / "group" / "timing.json").read_text())
+    assert timing["runs"] == 2 and not (tmp_path / "group" / "resume.pt").exists()
+    for seed, record in zip((0, 1), records):
+        alone = distill_student(sources, config, SCHEDULE, 50, seed, 0, _paths(tmp_path / f"alone{seed}"))
+        a = load_student(paths[seed].checkpoint).student.state_dict()
+        b = load_student(tmp_path / f"alone{seed}" / "student.pt").student.state_dict()
+        for k in a:
+            torch.testing.assert_close(a[k], b[k], rtol=1e-4, atol=1e-5)
+        assert record["seed"] == seed and record["trained_with_seeds"] == [0, 1]
+        assert alone["trained_with_seeds"] == [seed]
+        header = paths[seed].curve.read_text().splitlines()[0].split("\t")
+        assert "return_mean_stand" in header and not any("@" in column for column in header)
+    state_0 = load_student(paths[0].checkpoint).student.state_dict()
+    state_1 = load_student(paths[1].checkpoint).student.state_dict()
+    assert not all(torch.equal(state_0[k], state_1[k]) for k in state_0)  # two seeds, two students
 
 
 def test_config_errors_name_the_parameter():
@@ -210,9 +292,9 @@ def test_config_errors_name_the_parameter():
     with pytest.raises(ConfigError, match="hidden_sizes"):
         StudentConfig(hidden_sizes=())
     with pytest.raises(ValueError, match="Gaussian teachers"):
-        Distiller(DistillConfig(loss="kl", student=TINY), _targets(2, gaussian=False), 24, 6, seed=0)
+        Distiller(DistillConfig(loss="kl", student=TINY), [_targets(2, gaussian=False)], 24, 6, seeds=[0])
     with pytest.raises(ValueError, match="critic"):
-        Distiller(DistillConfig(loss="q", student=TINY), _targets(2, gaussian=False), 24, 6, seed=0)
+        Distiller(DistillConfig(loss="q", student=TINY), [_targets(2, gaussian=False)], 24, 6, seeds=[0])
 
 
 # ---- a whole run -------------------------------------------------------------------------------------------

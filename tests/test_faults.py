@@ -179,7 +179,7 @@ def _train(agent: Counter, tmp_path: Path, steps: int = 10, eval_every: int = 5,
     schedule = TrainSchedule(steps=steps, eval_every=eval_every, checkpoint_every=checkpoint_every, eval_episodes=1)
     paths = RunPaths(*(tmp_path / name for name in ("final.pt", "metrics.json", "curve.tsv", "resume.pt")))
     curve, _, resumed = train_loop(agent, agent.update, lambda seeds: {"return_mean": 0.0}, schedule, {"eval": 0},
-                                   torch.Generator().manual_seed(0), paths, "fingerprint", "toy run", False)
+                                   torch.Generator().manual_seed(0), paths.resume, "fingerprint", "toy run", False)
     return curve, resumed, paths
 
 

@@ -98,6 +98,17 @@ def test_hand_written_member_pass_passes_gradcheck_in_weights_and_inputs(depth):
     assert torch.autograd.gradcheck(lambda x_, *p: _EnsembleReLUMLP.apply(x_, *p), (x, *params))
 
 
+@pytest.mark.parametrize("depth", [1, 2])
+def test_hand_written_member_pass_with_one_input_per_member_passes_gradcheck(depth):
+    """A group of runs: member e reads its own batch x[e] (mop_core.distill.student.StudentGroup)."""
+    net = _relu_ensemble(depth=depth)
+    linears = [m for m in net if isinstance(m, EnsembleLinear)]
+    x = torch.randn(3, 7, 5, dtype=torch.float64, requires_grad=True)
+    params = [lin.weight for lin in linears] + [lin.bias for lin in linears]
+    assert torch.autograd.gradcheck(lambda x_, *p: _EnsembleReLUMLP.apply(x_, *p), (x, *params))
+    torch.testing.assert_close(per_member_forward(net, x), net(x))
+
+
 def test_hand_written_member_pass_equals_autograd_through_plain_layers():
     net = _relu_ensemble(width=32, members=4, dtype=torch.float32)
     x = torch.randn(300, 5, requires_grad=True)

@@ -281,13 +281,15 @@ def test_gaussian_actor_samples_within_bounds_with_the_closed_form_entropy():
 
 # ---- seeding --------------------------------------------------------------------------------------
 @pytest.mark.parametrize("actor", ["deterministic", "gaussian"])
-def test_same_seed_same_weights_other_seed_other_weights(actor):
+def test_same_seed_same_weights_other_seed_other_weights(actor, device):
+    """On the test device (MOP_TEST_DEVICE: CUDA in benchmarks/gpu_check.sh), with finite losses."""
     config = PBRLConfig(**{**CONFIG.__dict__, "actor": actor})
 
     def run(seed: int) -> list[torch.Tensor]:
-        agent = PBRL(config, 24, 6, seed=seed)
+        agent = PBRL(config, 24, 6, seed=seed, device=device)
         for i in range(4):
-            agent.update(_batch(i))
+            metrics = agent.update(_batch(i))
+            assert all(math.isfinite(float(v)) for v in metrics.values())
         return _params(agent.actor) + _params(agent.critic.critic)
 
     a, b, c = run(0), run(0), run(1)

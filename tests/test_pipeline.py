@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from conftest import ROOT
+from conftest import ROOT, TEST_DEVICE
 
 sys.path.insert(0, str(ROOT / "scripts"))
 from bad_inputs import copy_project  # noqa: E402
@@ -34,6 +34,10 @@ def _run(args: list[str], cwd: Path, check: bool = True) -> subprocess.Completed
 def repo(tmp_path_factory) -> Path:
     repo = tmp_path_factory.mktemp("study")
     copy_project(ROOT, repo)  # code, DAG, profiles; the tiny profile as params.yaml
+    if TEST_DEVICE != "cpu":  # the suite on a GPU machine (benchmarks/gpu_check.sh): every stage on CUDA
+        params = yaml.safe_load((repo / "params.yaml").read_text())
+        params["study"]["device"] = TEST_DEVICE
+        (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     _run(["git", "init", "-q"], repo)
     _run(["git", "-c", "user.name=t", "-c", "user.email=t@t", "add", "-A"], repo)
     _run(["git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "tiny study"], repo)
@@ -52,8 +56,8 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
             assert (repo / "results" / "teachers" / "curves" / f"{name}.tsv").is_file()
     assert (repo / "data" / "multitask" / "medium-0.pt").is_file()
     for loss in ("mse", "q", "kl"):
-        assert (repo / "data" / "students" / f"{loss}-medium-0.pt").is_file()
-        assert (repo / "results" / "students" / "curves" / f"{loss}-medium-0.tsv").is_file()
+        assert (repo / "data" / "students" / f"{loss}-medium" / f"{loss}-medium-0.pt").is_file()
+        assert (repo / "results" / "students" / "curves" / f"{loss}-medium" / f"{loss}-medium-0.tsv").is_file()
     assert not list((repo / "data" / "resume").glob("*"))  # finished runs leave no resume files
     evaluation = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
     for task in ("stand", "walk"):
@@ -78,18 +82,19 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
         assert (repo / "results" / "eval" / figure).read_bytes()[:4] == b"\x89PNG"
     stages = _run(["dvc", "stage", "list"], repo).stdout
     assert "train_teachers@stand-medium-gaussian-0" in stages and "train_multitask@medium-0" in stages
-    assert "distill@kl-medium-0" in stages and "eval" in stages
+    assert "distill@kl-medium" in stages and "eval" in stages
     shared = json.loads((repo / "results" / "shared_computation" / "metrics.json").read_text())
     for group in ("mse_medium", "q_medium", "kl_medium"):
         layers = shared["groups"][group]["pairs"]["stand-walk"]
         assert list(layers) == ["layer1", "layer2"]
         assert all(-1 <= row[f"average_tau_{v}"] <= 1 for row in layers.values() for v in "ab")
     assert "tau-b" in shared["note"] and "tau-a" in shared["note"]
-    curve = (repo / "results" / "students" / "curves" / "mse-medium-0.tsv").read_text().splitlines()
+    curve = (repo / "results" / "students" / "curves" / "mse-medium" / "mse-medium-0.tsv").read_text().splitlines()
     assert {"per_state_tau_a_layer1", "per_state_tau_b_layer2"} <= set(curve[0].split("\t"))
     _check_report(repo)
-    timing = json.loads((repo / "results" / "timings" / "students" / "mse-medium-0.json").read_text())
+    timing = json.loads((repo / "results" / "timings" / "students" / "mse-medium.json").read_text())
     assert timing["seconds"] > 0 and timing["steps_per_second"] > 0 and "torch==" in timing["versions"]
+    assert timing["runs"] == 1  # the tiny profile's one seed: a group of one
     status = _run(["dvc", "status"], repo).stdout
     assert "up to date" in status.lower()
     # the .gitignore DVC keeps next to file outputs is not data: rewriting it (as a checkout elsewhere
@@ -151,20 +156,21 @@ def test_metrics_show_holds_the_headline_numbers_and_the_timings_apart(repo):
 
 def test_every_plot_renders_and_only_the_current_runs_are_drawn(repo):
     curves = repo / "results" / "students" / "curves"
-    stale = curves / "mse-medium-7.tsv"  # what another profile's seed 7 would leave in the workspace
-    shutil.copy(curves / "mse-medium-0.tsv", stale)
+    stale = curves / "mse-expert" / "mse-expert-0.tsv"  # what another profile's pairing would leave behind
+    stale.parent.mkdir()
+    shutil.copy(curves / "mse-medium" / "mse-medium-0.tsv", stale)
     try:
         shown = json.loads(_run(["dvc", "plots", "show", "--json"], repo).stdout)
         _run(["dvc", "plots", "show"], repo)  # the HTML page, written to dvc_plots/ (git-ignored)
     finally:
-        stale.unlink()
+        shutil.rmtree(stale.parent)
     assert not shown.get("errors"), shown.get("errors")
     kinds = {path: {plot["type"] for plot in plots} for path, plots in shown["data"].items()}
-    assert "results/students/curves/mse-medium-7.tsv" not in kinds
+    assert "results/students/curves/mse-expert/mse-expert-0.tsv" not in kinds
     for curve in ("collect/curves/stand.tsv", "teachers/curves/walk-medium-gaussian-0.tsv",
-                  "multitask/curves/medium-0.tsv", "students/curves/kl-medium-0.tsv", "eval/returns.tsv",
-                  "students/tau/mse-medium-0/per_state_tau_a_layer1.tsv",
-                  "students/tau/q-medium-0/per_state_tau_b_layer2.tsv"):
+                  "multitask/curves/medium-0.tsv", "students/curves/kl-medium/kl-medium-0.tsv", "eval/returns.tsv",
+                  "students/tau/mse-medium/mse-medium-0/per_state_tau_a_layer1.tsv",
+                  "students/tau/q-medium/q-medium-0/per_state_tau_b_layer2.tsv"):
         assert kinds[f"results/{curve}"] == {"vega"}, curve
     pngs = {p.relative_to(repo).as_posix() for p in (repo / "results").rglob("*.png")}
     assert len(pngs) >= 9 and all(kinds[png] == {"image"} for png in pngs)  # every figure a stage drew
@@ -259,8 +265,8 @@ def test_a_changed_teacher_makes_only_its_own_students_stale(repo):
         torch.save(payload, teacher)
         _run(["dvc", "repro", "-s", "student_inputs"], repo)
         stale = set(json.loads(_run(["dvc", "status", "--json"], repo).stdout))
-        assert {s for s in stale if s.startswith("distill")} == {"distill@kl-medium-0"}, stale
-        assert not {"distill@mse-medium-0", "distill@q-medium-0"} & stale
+        assert {s for s in stale if s.startswith("distill")} == {"distill@kl-medium"}, stale
+        assert not {"distill@mse-medium", "distill@q-medium"} & stale
     finally:
         teacher.unlink()
         teacher.write_bytes(original)
@@ -270,7 +276,7 @@ def test_a_changed_teacher_makes_only_its_own_students_stale(repo):
 
 def test_exp_run_of_distill_param_reruns_only_distill_and_what_reads_students(repo):
     out = _run(["dvc", "exp", "run", "-S", "distill.learning_rate=0.002"], repo).stdout
-    assert _stages_run(out) == {"params", "distill@mse-medium-0", "distill@q-medium-0", "distill@kl-medium-0",
+    assert _stages_run(out) == {"params", "distill@mse-medium", "distill@q-medium", "distill@kl-medium",
                                 "eval", "shared_computation", "report"}
     metrics = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
     assert "student_mse_medium" in metrics["stand"]
@@ -323,7 +329,7 @@ def test_queued_sweep_and_the_run_cache_shared_through_a_remote(repo, tmp_path):
     assert not _stages_run(out), out
     assert out.count("is cached - skipping run") >= 5  # params, the 3 students, eval, ...
     assert json.loads((clone / "results" / "metrics.json").read_text()) == machine_a
-    assert (clone / "data" / "students" / "mse-medium-0.pt").is_file()
+    assert (clone / "data" / "students" / "mse-medium" / "mse-medium-0.pt").is_file()
 
 
 def test_bad_parameter_fails_before_compute_and_names_the_key(repo, tmp_path):
@@ -386,8 +392,9 @@ def test_a_bad_param_stops_dvc_repro_before_any_output_is_deleted(repo):
     """DVC deletes a stage's outputs before its command runs; the params stage fails first, so a typo
     anywhere costs nothing (before issue 12 this deleted distill's checkpoints and cache: false metrics)."""
     original = (repo / "params.yaml").read_text()
-    outputs = [repo / "data" / "students" / "mse-medium-0.pt", repo / "results" / "students" / "metrics" /
-               "mse-medium-0.json", repo / "results" / "eval" / "metrics.json", repo / "results" / "report.md"]
+    outputs = [repo / "data" / "students" / "mse-medium" / "mse-medium-0.pt", repo / "results" / "students" /
+               "metrics" / "mse-medium" / "mse-medium-0.json", repo / "results" / "eval" / "metrics.json",
+               repo / "results" / "report.md"]
     before = {path: path.read_bytes() for path in outputs}
     params = yaml.safe_load(original)
     params["distill"]["learning_rate"] = float("inf")

@@ -75,13 +75,14 @@ def test_losses_give_nonzero_gradients_to_every_parameter():
     assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in agent.actor.parameters())
 
 
-def test_same_seed_same_learning():
+def test_same_seed_same_learning(device):
+    """On the test device (MOP_TEST_DEVICE: CUDA in benchmarks/gpu_check.sh)."""
     runs = []
     for _ in range(2):
-        agent = TD3(CONFIG, 24, 6, seed=11)
+        agent = TD3(CONFIG, 24, 6, seed=11, device=device)
         for i in range(4):
             agent.update(_batch(i))
         runs.append(torch.cat([p.flatten() for p in agent.actor.parameters()]))
     torch.testing.assert_close(runs[0], runs[1], rtol=0, atol=0)
-    other = TD3(CONFIG, 24, 6, seed=12)
+    other = TD3(CONFIG, 24, 6, seed=12, device=device)
     assert not torch.equal(runs[0][:10], torch.cat([p.flatten() for p in other.actor.parameters()])[:10])

@@ -56,7 +56,7 @@ def run_toy(root, schedule: TrainSchedule, stop_at: int | None = None):
 
     toy.updates_done = 0
     curve, _, resumed_from = train_loop(toy, update, lambda seeds: {"return_mean": float(toy.weight.sum())},
-                                        schedule, {"eval": 0}, sampler, paths(root), "toy", "toy", False)
+                                        schedule, {"eval": 0}, sampler, paths(root).resume, "toy", "toy", False)
     return toy, curve, resumed_from
 
 
@@ -129,4 +129,4 @@ def test_a_non_finite_loss_stops_the_run_naming_it(tmp_path):
     toy = Toy(torch.Generator().manual_seed(0))
     with pytest.raises(TrainingDivergedError, match="toy run: loss = nan at step 1"):
         train_loop(toy, lambda: {"loss": float("nan")}, lambda seeds: {"return_mean": 0.0}, schedule, {"eval": 0},
-                   toy.sampler, paths(tmp_path), "toy", "toy run", False)
+                   toy.sampler, paths(tmp_path).resume, "toy", "toy run", False)

@@ -1,6 +1,7 @@
-"""The distillation learner: one update of the student per call (thesis 4.2, 5.1.3).
+"""The distillation learner: one update of a group of students per call (thesis 4.2, 5.1.3).
 
-Each update draws ``batch_size`` states per task (uniformly, with replacement) from that task's
+Every run of the group (its own seed) does what one student alone would: each update draws
+``batch_size`` states per task (uniformly, with replacement) from that task's
 :class:`~mop_core.distill.states.TaskStates`. By default it runs the student once on all
 ``m * batch_size`` rows (state + one-hot task id) and takes one Adam step on the loss averaged over
 the rows, i.e. ``1/m sum_i E_{s~D_i}[loss_i(s)]`` as in the thesis. With ``step_per_task`` it takes
@@ -23,7 +24,7 @@ import torch
 from mop_core.config import ConfigError, from_mapping, require
 from mop_core.distill.losses import LOSSES, Q_REDUCTIONS, LossInputs, mse_per_state
 from mop_core.distill.states import STATE_SOURCES, TaskStates
-from mop_core.distill.student import Student, StudentConfig
+from mop_core.distill.student import Student, StudentConfig, StudentGroup
 from mop_core.nn import EnsembleCritic, adam
 from mop_core.study import DISTILL_GRID_KEYS, section
 
@@ -78,86 +79,142 @@ def distill_config(params: Mapping[str, Any], loss: str) -> DistillConfig:
     return from_mapping(DistillConfig, raw | {"loss": loss}, "distill")
 
 
-class Distiller:
-    """A student, its optimiser and the cached targets of every task; ``update()`` is one step."""
+def run_key(key: str, run: int) -> str:
+    """The metric or curve column ``key`` of run ``run`` of a group: ``key@run``."""
+    return f"{key}@{run}"
 
-    def __init__(self, config: DistillConfig, targets: Sequence[TaskStates], obs_dim: int, act_dim: int, seed: int,
-                 critics: Sequence[EnsembleCritic] | None = None, device: torch.device | str = "cpu",
-                 total_steps: int = 1):
-        self.config, self.device, self.targets = config, torch.device(device), list(targets)
+
+def split_runs(row: Mapping[str, Any], runs: int) -> list[dict]:
+    """A group's row (``key@r`` columns per run, plain columns shared) -> one row per run."""
+    shared = {k: v for k, v in row.items() if "@" not in k}
+    out = [dict(shared) for _ in range(runs)]
+    for key, value in row.items():
+        if "@" in key:
+            name, run = key.rsplit("@", 1)
+            out[int(run)][name] = value
+    return out
+
+
+class Distiller:
+    """R students (a group; R = 1 is one run), their optimiser and every task's cached targets;
+    ``update()`` is one step of every run.
+
+    Run r has its own seed (initialisation: the same weights as a lone :class:`Student` built after
+    ``torch.manual_seed(seeds[r])``), its own generator of state indices and its own states
+    (``targets[r][i]``: task i's). One forward, backward and fused Adam step serve all runs: the
+    loss is the sum over runs of each run's mean, so run r's gradient is its own loss's gradient,
+    and Adam is element-wise: a group equals its runs trained alone, to float rounding (tested).
+    """
+
+    def __init__(self, config: DistillConfig, targets: Sequence[Sequence[TaskStates]], obs_dim: int, act_dim: int,
+                 seeds: Sequence[int], critics: Sequence[EnsembleCritic] | None = None,
+                 device: torch.device | str = "cpu", total_steps: int = 1):
+        if len(targets) != len(seeds) or not seeds:
+            raise ValueError(f"targets: expected one list of task states per seed ({len(seeds)}), got {len(targets)}")
+        self.config, self.device, self.targets = config, torch.device(device), [list(t) for t in targets]
         self.total_steps = total_steps  # the length of the learning-rate schedule
-        self.tasks = [t.task for t in self.targets]
+        self.tasks = [t.task for t in self.targets[0]]
+        if any([t.task for t in run] != self.tasks for run in self.targets):
+            raise ValueError("targets: every run of a group must learn the same tasks in the same order")
         self.spec = LOSSES[config.loss]
-        if self.spec.needs_critics and (critics is None or len(critics) != len(self.targets)):
+        if self.spec.needs_critics and (critics is None or len(critics) != len(self.tasks)):
             raise ValueError(f"critics: the {config.loss} loss needs one teacher critic ensemble per task")
-        if self.spec.teacher_actor == "gaussian" and any(t.teacher_std is None for t in self.targets):
+        if self.spec.teacher_actor == "gaussian" and any(t.teacher_std is None for run in self.targets for t in run):
             raise ValueError(f"targets: the {config.loss} loss needs Gaussian teachers (teacher_std is missing)")
         self.critics = ([c.to(self.device).requires_grad_(False) for c in critics] if self.spec.needs_critics
                         else [])
-        torch.manual_seed(seed)  # student initialisation
-        self.student = Student(config.student, obs_dim, act_dim, len(self.targets),
-                               gaussian=self.spec.gaussian_student).to(self.device)
-        self.optimizer = adam(self.student.parameters(), config.learning_rate)
-        self.generator = torch.Generator().manual_seed(seed)
+        students = []
+        for seed in seeds:
+            torch.manual_seed(seed)  # each run's initialisation, as a run alone would draw it
+            students.append(Student(config.student, obs_dim, act_dim, len(self.tasks),
+                                    gaussian=self.spec.gaussian_student))
+        self.seeds = list(seeds)
+        self.group = StudentGroup(students).to(self.device)
+        self.optimizer = adam(self.group.parameters(), config.learning_rate)
+        # state indices drawn on the device the states lie on (no host-to-device copy per step on a GPU)
+        self.generators = [torch.Generator(self.device).manual_seed(seed) for seed in seeds]
         self.updates = 0
 
-    def _rows(self, task: int, batch_size: int) -> torch.Tensor:
-        return torch.randint(len(self.targets[task]), (batch_size,), generator=self.generator).to(self.device)
+    @property
+    def runs(self) -> int:
+        return len(self.seeds)
 
-    def loss(self, rows: Sequence[torch.Tensor], tasks: Sequence[int] | None = None
+    def student(self, run: int = 0) -> Student:
+        """Run ``run``'s student as it is now (a copy)."""
+        return self.group.member(run)
+
+    def _rows(self, run: int, task: int, batch_size: int) -> torch.Tensor:
+        return torch.randint(len(self.targets[run][task]), (batch_size,), generator=self.generators[run],
+                             device=self.device)
+
+    def loss(self, rows: Sequence[Sequence[torch.Tensor]], tasks: Sequence[int] | None = None
              ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        """The loss on the given state indices (``rows[k]`` of task ``tasks[k]``; default: one index
-        tensor per task, in task order) and per-task metrics (0-d tensors, not read here)."""
+        """The loss on the given state indices (``rows[r][k]``: run r's indices into task ``tasks[k]``;
+        default tasks: all, in task order; every run draws the same count per task) and per-run,
+        per-task metrics (0-d tensors, not read here, named ``key@run``). The loss is the sum over
+        runs of each run's mean over its rows."""
         cfg = self.config
-        tasks = list(range(len(self.targets))) if tasks is None else list(tasks)
-        targets = [self.targets[t] for t in tasks]
-        sizes = [len(r) for r in rows]
-        obs = torch.cat([t.states[r] for t, r in zip(targets, rows)])
-        teacher_actions = torch.cat([t.teacher_actions[r] for t, r in zip(targets, rows)])
+        tasks = list(range(len(self.tasks))) if tasks is None else list(tasks)
+        sizes = [len(r) for r in rows[0]]
+        if any([len(r) for r in run_rows] != sizes for run_rows in rows):
+            raise ValueError("rows: every run of a group must draw the same number of states per task")
+
+        def gather(field: str) -> torch.Tensor:
+            return torch.stack([torch.cat([getattr(self.targets[r][t], field)[i] for t, i in zip(tasks, run_rows)])
+                                for r, run_rows in enumerate(rows)])
+
+        obs, teacher_actions = gather("states"), gather("teacher_actions")
         task_ids = torch.tensor(tasks, device=self.device).repeat_interleave(torch.tensor(sizes, device=self.device))
-        teacher_std = (torch.cat([t.teacher_std[r] for t, r in zip(targets, rows)])
-                       if self.spec.teacher_actor == "gaussian" else None)
-        per_state, actions = self.spec.per_state(LossInputs(self.student, obs, task_ids, teacher_actions, teacher_std,
+        teacher_std = gather("teacher_std") if self.spec.teacher_actor == "gaussian" else None
+        per_state, actions = self.spec.per_state(LossInputs(self.group, obs, task_ids, teacher_actions, teacher_std,
                                                             tasks, sizes, self.critics, cfg.q_reduction))
-        loss = per_state.mean()
-        metrics = {"loss": loss.detach()}
+        run_losses = per_state.mean(-1)  # [R]
+        metrics: dict[str, torch.Tensor] = {}
         with torch.no_grad():
             action_mse = mse_per_state(actions, teacher_actions)
-            for t, part, mse in zip(tasks, per_state.split(sizes), action_mse.split(sizes)):
-                metrics[f"loss_{self.tasks[t]}"] = part.mean()
-                metrics[f"action_mse_{self.tasks[t]}"] = mse.mean()
-        return loss, metrics
+            for r in range(self.runs):
+                metrics[run_key("loss", r)] = run_losses[r].detach()
+                for t, part, mse in zip(tasks, per_state[r].split(sizes), action_mse[r].split(sizes)):
+                    metrics[run_key(f"loss_{self.tasks[t]}", r)] = part.mean()
+                    metrics[run_key(f"action_mse_{self.tasks[t]}", r)] = mse.mean()
+        return run_losses.sum(), metrics
 
     def _step(self, loss: torch.Tensor) -> None:
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
 
+    def _draw(self, tasks: Sequence[int]) -> list[list[torch.Tensor]]:
+        return [[self._rows(r, t, self.config.batch_size) for t in tasks] for r in range(self.runs)]
+
     def update(self) -> dict[str, torch.Tensor | float]:
         lr = learning_rate_at(self.config, self.updates, self.total_steps)
         for group in self.optimizer.param_groups:
             group["lr"] = lr
-        tasks = range(len(self.targets))
+        tasks = range(len(self.tasks))
         if self.config.step_per_task:
             metrics = {}
             for t in tasks:
-                loss, task_metrics = self.loss([self._rows(t, self.config.batch_size)], [t])
+                loss, task_metrics = self.loss(self._draw([t]), [t])
                 self._step(loss)
-                metrics |= {k: v for k, v in task_metrics.items() if k != "loss"}
-            metrics["loss"] = sum(metrics[f"loss_{task}"] for task in self.tasks) / len(self.tasks)
+                metrics |= {k: v for k, v in task_metrics.items() if not k.startswith("loss@")}
+            for r in range(self.runs):
+                metrics[run_key("loss", r)] = sum(metrics[run_key(f"loss_{task}", r)]
+                                                  for task in self.tasks) / len(self.tasks)
         else:
-            loss, metrics = self.loss([self._rows(t, self.config.batch_size) for t in tasks])
+            loss, metrics = self.loss(self._draw(tasks))
             self._step(loss)
         metrics["learning_rate"] = lr
         self.updates += 1
         return metrics
 
     def state_dict(self) -> dict:
-        return copy.deepcopy({"student": self.student.state_dict(), "optimizer": self.optimizer.state_dict(),
-                              "generator": self.generator.get_state(), "updates": self.updates})
+        return copy.deepcopy({"group": self.group.state_dict(), "optimizer": self.optimizer.state_dict(),
+                              "generators": [g.get_state() for g in self.generators], "updates": self.updates})
 
     def load_state_dict(self, state: dict) -> None:
-        self.student.load_state_dict(state["student"])
+        self.group.load_state_dict(state["group"])
         self.optimizer.load_state_dict(state["optimizer"])
-        self.generator.set_state(state["generator"])
+        for generator, saved in zip(self.generators, state["generators"], strict=True):
+            generator.set_state(saved)
         self.updates = state["updates"]

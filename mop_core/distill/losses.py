@@ -66,11 +66,11 @@ class LossInputs:
     """One batch as a loss sees it: states of several tasks in blocks (``sizes[k]`` rows of task
     ``tasks[k]``), their task ids, the frozen teachers' outputs and, for the Q loss, their critics."""
 
-    student: torch.nn.Module
-    obs: torch.Tensor  # [B, obs_dim]
-    task_ids: torch.Tensor  # [B]
-    teacher_actions: torch.Tensor  # [B, k]: the teacher's action (a Gaussian teacher's mean)
-    teacher_std: torch.Tensor | None  # [B, k]: a Gaussian teacher's std (None for deterministic teachers)
+    student: torch.nn.Module  # a Student ([B] rows) or a StudentGroup ([R, B] rows: one batch per run)
+    obs: torch.Tensor  # [B, obs_dim] or [R, B, obs_dim]
+    task_ids: torch.Tensor  # [B] (the same layout for every run)
+    teacher_actions: torch.Tensor  # [(R,) B, k]: the teacher's action (a Gaussian teacher's mean)
+    teacher_std: torch.Tensor | None  # [(R,) B, k]: a Gaussian teacher's std (None for deterministic teachers)
     tasks: Sequence[int]  # task index of each block
     sizes: Sequence[int]  # rows of each block
     critics: Sequence[torch.nn.Module]  # per task index: the teacher's critic ensemble (Q loss only)
@@ -84,9 +84,12 @@ def _mse(x: LossInputs) -> tuple[torch.Tensor, torch.Tensor]:
 
 def _q(x: LossInputs) -> tuple[torch.Tensor, torch.Tensor]:
     actions = x.student(x.obs, x.task_ids)
-    per_state = torch.cat([q_per_state(x.critics[t](o, a), x.q_reduction) for t, o, a in
-                           zip(x.tasks, x.obs.split(list(x.sizes)), actions.split(list(x.sizes)))])
-    return per_state, actions
+    blocks = []
+    for t, o, a in zip(x.tasks, x.obs.split(list(x.sizes), dim=-2), actions.split(list(x.sizes), dim=-2)):
+        # every run's rows of task t through the one frozen critic ensemble, as one batch
+        q = q_per_state(x.critics[t](o.reshape(-1, o.shape[-1]), a.reshape(-1, a.shape[-1])), x.q_reduction)
+        blocks.append(q.reshape(o.shape[:-1]))
+    return torch.cat(blocks, dim=-1), actions
 
 
 def _kl(x: LossInputs) -> tuple[torch.Tensor, torch.Tensor]:
@@ -102,7 +105,7 @@ class Loss:
     teacher_actor: str  # the PBRL actor type of the teachers it distils: "deterministic" or "gaussian"
     gaussian_student: bool  # the student has a diagonal Gaussian head (mean, log std)
     needs_critics: bool  # the teachers' critic ensembles are part of the loss
-    per_state: Callable[[LossInputs], tuple[torch.Tensor, torch.Tensor]]  # -> (loss [B], student action [B, k])
+    per_state: Callable[[LossInputs], tuple[torch.Tensor, torch.Tensor]]  # -> (loss [(R,) B], action [(R,) B, k])
 
 
 LOSSES: dict[str, Loss] = {

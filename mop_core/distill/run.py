@@ -10,7 +10,7 @@ teachers it learned from) and a metrics record (return per task next to the teac
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -21,7 +21,7 @@ from mop_core.artifacts import load_checkpoint, state_sha256, write_curve
 from mop_core.catalogue import check_student_inputs
 from mop_core.config import from_mapping, require, to_dict
 from mop_core.data import read_dataset_attrs, read_json
-from mop_core.distill.distiller import DistillConfig, Distiller
+from mop_core.distill.distiller import DistillConfig, Distiller, run_key, split_runs
 from mop_core.distill.losses import LOSSES
 from mop_core.distill.states import TaskStates, offline_states, online_states, task_states
 from mop_core.distill.student import Student
@@ -34,6 +34,7 @@ from mop_core.schedule import TrainSchedule
 from mop_core.structure import per_state_tau_by_layer
 from mop_core.tasks import check_task_list
 from mop_core.teachers import Teacher, TeacherConfig, check_teacher_checkpoint, load_teacher
+from mop_core.timings import per_second, write_timing
 from mop_core.training import RunPaths, finish_run, returns_summary, run_fingerprint, train_loop
 
 STUDENT_KIND = "mop_student"
@@ -130,80 +131,118 @@ def student_policy(student: Student, task_index: int, device: torch.device, samp
 def distill_student(sources: StudentSources, config: DistillConfig, schedule: TrainSchedule, episode_length: int,
                     seed: int, study_seed: int, paths: RunPaths, device: torch.device | str = "cpu",
                     progress: bool = False, name: str = "student") -> dict:
-    """Distil the teachers of ``sources`` into one student; write checkpoint, curve and metrics.
+    """Distil the teachers of ``sources`` into one student (a group of one); write its files.
 
-    Returns the metrics record (also written to ``paths.metrics``).
+    Returns the metrics record (also written to ``paths.metrics``)."""
+    return distill_students(sources, config, schedule, episode_length, [seed], study_seed, [paths], paths.resume,
+                            paths.timing, device, progress, name)[0]
+
+
+def distill_students(sources: StudentSources, config: DistillConfig, schedule: TrainSchedule, episode_length: int,
+                     seeds: Sequence[int], study_seed: int, paths: Sequence[RunPaths], resume: Path,
+                     timing: Path | None, device: torch.device | str = "cpu", progress: bool = False,
+                     name: str = "students") -> list[dict]:
+    """Distil the teachers of ``sources`` into one student per seed, all seeds trained together as one
+    vectorised group (:class:`~mop_core.distill.distiller.Distiller`); write each run's checkpoint,
+    curve and metrics (``paths[r]``), the group's resume file and its timing record.
+
+    Each run's result is what the run alone would give (its own initialisation, states and index
+    stream; tested to float rounding). Returns the metrics records, one per seed.
     """
+    require(len(set(seeds)) == len(seeds) and len(seeds) == len(paths) and seeds, "seeds",
+            f"distinct seeds, one per output path ({len(paths)})", list(seeds))
     device = torch.device(device)
     teachers = load_teachers(sources, config.loss)
     levels = [t.level for t in teachers]
     # What differs between students of a pairing (initialisation, distillation states) derives from the
     # student seed; what every student of the pairing must share (evaluation episodes, probe states)
     # does not depend on the loss or the seed.
-    seeds = derive_seeds([study_seed, "distill", *sources.tasks, *levels, seed], ("agent", "states"))
-    seeds |= derive_seeds([study_seed, "distill", *sources.tasks, *levels], ("eval", "final_eval", "probe"))
-    targets = build_states(sources, teachers, config, episode_length, seeds["states"], schedule.rollout_envs, device)
+    run_seeds = [derive_seeds([study_seed, "distill", *sources.tasks, *levels, seed], ("agent", "states"))
+                 for seed in seeds]
+    shared = derive_seeds([study_seed, "distill", *sources.tasks, *levels], ("eval", "final_eval", "probe"))
+    targets = [build_states(sources, teachers, config, episode_length, run_seeds[0]["states"],
+                            schedule.rollout_envs, device)]
+    for more in run_seeds[1:]:  # the whole offline dataset is the same for every seed: shared, not rebuilt
+        targets.append(targets[0] if config.state_source == "offline" and config.num_states == 0 else
+                       build_states(sources, teachers, config, episode_length, more["states"],
+                                    schedule.rollout_envs, device))
     critics = [t.critic for t in teachers] if LOSSES[config.loss].needs_critics else None
-    distiller = Distiller(config, targets, OBS_DIM, ACT_DIM, seeds["agent"], critics, device, schedule.steps)
-    student = distiller.student
-    policies = [student_policy(student, i, device) for i in range(len(sources.tasks))]
+    distiller = Distiller(config, targets, OBS_DIM, ACT_DIM, [s["agent"] for s in run_seeds], critics, device,
+                          schedule.steps)
     track_tau = config.probe_states > 0 and len(sources.tasks) > 1
-    fixed_probes = (offline_probes(sources, config.probe_states, seeds["probe"])
+    fixed_probes = (offline_probes(sources, config.probe_states, shared["probe"])
                     if track_tau and config.probe_source == "offline" else [])
 
-    def probe_tau(visited: Sequence[np.ndarray]) -> dict[str, float]:
-        probes = fixed_probes or visited_probes(visited, config.probe_states, seeds["probe"])
+    def probe_tau(student: Student, visited: Sequence[np.ndarray]) -> dict[str, float]:
+        probes = fixed_probes or visited_probes(visited, config.probe_states, shared["probe"])
         return tau_columns(per_state_tau_by_layer(student, [p.to(device) for p in probes]))
 
-    def evaluate(eval_seeds: list[int]) -> dict[str, float]:
+    def evaluate_run(student: Student, eval_seeds: list[int]) -> dict[str, float]:
         row, visited = {}, []
-        for task, policy in zip(sources.tasks, policies):
-            returns, states = returns_and_states(policy, task, eval_seeds, episode_length, schedule.rollout_envs)
+        for i, task in enumerate(sources.tasks):
+            returns, states = returns_and_states(student_policy(student, i, device), task, eval_seeds,
+                                                 episode_length, schedule.rollout_envs)
             row |= {f"{key}_{task}": value for key, value in returns_summary(returns).items()}
             visited.append(states)
         row["return_mean"] = float(np.mean([row[f"return_mean_{task}"] for task in sources.tasks]))
-        return row | (probe_tau(visited) if track_tau else {})
+        return row | (probe_tau(student, visited) if track_tau else {})
 
-    tau_at_init: dict[str, float] = {}
-    if track_tau:  # the untrained student, measured the way the curve is (visited: its own first episodes)
-        tau_at_init = probe_tau([]) if fixed_probes else {
-            k: v for k, v in evaluate([seeds["eval"] + i for i in range(schedule.eval_episodes)]).items()
-            if k.startswith("per_state_tau_")}
+    def evaluate(eval_seeds: list[int]) -> dict[str, float]:
+        rows = [evaluate_run(distiller.student(r), eval_seeds) for r in range(len(seeds))]
+        group_row = {run_key(k, r): v for r, row in enumerate(rows) for k, v in row.items()}
+        return group_row | {"return_mean": float(np.mean([row["return_mean"] for row in rows]))}
+
+    tau_at_init: list[dict[str, float]] = [{} for _ in seeds]
+    if track_tau:  # the untrained students, measured the way the curve is (visited: their own first episodes)
+        first = [shared["eval"] + i for i in range(schedule.eval_episodes)]
+        tau_at_init = [probe_tau(distiller.student(r), []) if fixed_probes else
+                       {k: v for k, v in evaluate_run(distiller.student(r), first).items()
+                        if k.startswith("per_state_tau_")} for r in range(len(seeds))]
 
     fingerprint = run_fingerprint({"tasks": sources.tasks, "config": to_dict(config), "schedule": to_dict(schedule),
-                                   "seed": seed, "study_seed": study_seed,
+                                   "seeds": list(seeds), "study_seed": study_seed,
                                    "teachers": [t.actor_sha256 for t in teachers],
-                                   "states": [t.source for t in targets]})
-    curve, seconds, resumed_from = train_loop(distiller, distiller.update, evaluate, schedule, seeds,
-                                              distiller.generator, paths, fingerprint, f"distill {name}", progress)
-    final_seeds = [seeds["final_eval"] + i for i in range(schedule.final_eval_episodes)]
-    metrics: dict = {"tasks": list(sources.tasks), "loss": config.loss, "levels": levels, "seed": seed,
-                     "gradient_steps": schedule.steps}
-    if track_tau:
-        metrics["per_state_tau"] = {
-            "probe_source": config.probe_source,
-            "probe_states_per_task": (min(len(p) for p in fixed_probes) if fixed_probes
-                                      else config.probe_states),
-            "probe_sha256": (hashlib.sha256(torch.cat(fixed_probes).numpy().tobytes()).hexdigest()
-                             if fixed_probes else None),
-            "at_init": tau_at_init,
-            "final": {key: float(curve[-1][key]) for key in tau_at_init}}
-    for task, policy, teacher in zip(sources.tasks, policies, teachers):
-        final = episode_returns(policy, task, final_seeds, episode_length, schedule.rollout_envs)
-        teacher_return = float(teacher.metrics.get("return_mean", float("nan")))
-        metrics[task] = {"return_mean": float(final.mean()), "return_std": float(final.std()),
-                         "eval_episodes": len(final), "teacher_return_mean": teacher_return,
-                         "student_to_teacher": float(final.mean() / teacher_return)}
-    student_state = {k: v.cpu() for k, v in student.state_dict().items()}
-    return finish_run(paths, {
-        "kind": STUDENT_KIND, "tasks": list(sources.tasks), "seed": seed, "study_seed": study_seed,
-        "distill_config": to_dict(config), "schedule": to_dict(schedule), "episode_length": episode_length,
-        "obs_dim": OBS_DIM, "act_dim": ACT_DIM, "student": student_state,
-        "student_sha256": state_sha256(student_state),
-        "teachers": [{"path": str(p), "task": t.task, "level": t.level, "seed": t.seed, "actor": t.config.actor,
-                      "actor_sha256": t.actor_sha256} for p, t in zip(sources.teachers, teachers)],
-        "states": [t.source for t in targets], "metrics": metrics}, curve, metrics, seconds, schedule.steps,
-        resumed_from, device)
+                                   "states": [[t.source for t in run] for run in targets]})
+    group_curve, seconds, resumed_from = train_loop(distiller, distiller.update, evaluate, schedule, shared, None,
+                                                    resume, fingerprint, f"distill {name}", progress)
+    curves = [[split_runs(row, len(seeds))[r] for row in group_curve] for r in range(len(seeds))]
+    final_seeds = [shared["final_eval"] + i for i in range(schedule.final_eval_episodes)]
+    records = []
+    for r, (seed, run_paths) in enumerate(zip(seeds, paths)):
+        student, curve = distiller.student(r), curves[r]
+        metrics: dict = {"tasks": list(sources.tasks), "loss": config.loss, "levels": levels, "seed": seed,
+                         "gradient_steps": schedule.steps, "trained_with_seeds": list(seeds)}
+        if track_tau:
+            metrics["per_state_tau"] = {
+                "probe_source": config.probe_source,
+                "probe_states_per_task": (min(len(p) for p in fixed_probes) if fixed_probes
+                                          else config.probe_states),
+                "probe_sha256": (hashlib.sha256(torch.cat(fixed_probes).numpy().tobytes()).hexdigest()
+                                 if fixed_probes else None),
+                "at_init": tau_at_init[r],
+                "final": {key: float(curve[-1][key]) for key in tau_at_init[r]}}
+        for i, (task, teacher) in enumerate(zip(sources.tasks, teachers)):
+            final = episode_returns(student_policy(student, i, device), task, final_seeds, episode_length,
+                                    schedule.rollout_envs)
+            teacher_return = float(teacher.metrics.get("return_mean", float("nan")))
+            metrics[task] = {"return_mean": float(final.mean()), "return_std": float(final.std()),
+                             "eval_episodes": len(final), "teacher_return_mean": teacher_return,
+                             "student_to_teacher": float(final.mean() / teacher_return)}
+        student_state = {k: v.cpu() for k, v in student.state_dict().items()}
+        checkpoint = {
+            "kind": STUDENT_KIND, "tasks": list(sources.tasks), "seed": seed, "study_seed": study_seed,
+            "distill_config": to_dict(config), "schedule": to_dict(schedule), "episode_length": episode_length,
+            "obs_dim": OBS_DIM, "act_dim": ACT_DIM, "student": student_state,
+            "student_sha256": state_sha256(student_state),
+            "teachers": [{"path": str(p), "task": t.task, "level": t.level, "seed": t.seed, "actor": t.config.actor,
+                          "actor_sha256": t.actor_sha256} for p, t in zip(sources.teachers, teachers)],
+            "states": [t.source for t in targets[r]], "metrics": metrics}
+        records.append(finish_run(replace(run_paths, timing=None, resume=resume), checkpoint, curve, metrics,
+                                  seconds, schedule.steps, resumed_from, device))
+    if timing is not None:
+        write_timing(timing, seconds, device, steps=schedule.steps, runs=len(seeds),
+                     steps_per_second=per_second(schedule.steps, seconds), resumed_from_step=resumed_from)
+    return records
 
 
 @dataclass
@@ -232,15 +271,15 @@ def student_from_checkpoint(payload: dict) -> LoadedStudent:
     return LoadedStudent(student.eval().requires_grad_(False), list(payload["tasks"]), config, payload)
 
 
-def check_student_files(run: StudentRun, study_seed: int, teacher_config: Callable[[str], TeacherConfig],
+def check_student_files(runs: list[StudentRun], study_seed: int, teacher_config: Callable[[str], TeacherConfig],
                         record: Path) -> None:
     """Before any compute: each teacher was trained as the study now says (task, level, seed, PBRL
     settings, dataset content; ``teacher_config(actor)`` gives the expected settings), and the files
-    are the ones the student_inputs stage recorded (``record``, the DVC dependency of this student)."""
-    for t in run.teachers:
+    are the ones the student_inputs stage recorded (``record``, the DVC dependency of these students)."""
+    for t in runs[0].teachers:
         check_teacher_checkpoint(t.paths.checkpoint, t.task, t.level, t.seed, study_seed, teacher_config(t.actor),
                                  read_dataset_attrs(t.dataset)["content_sha256"])
-    check_student_inputs(run, read_json(record), record)
+    check_student_inputs(runs, read_json(record), record)
 
 
 def write_tau_curves(directory: Path, curve: list[dict]) -> None:
@@ -256,9 +295,8 @@ def write_tau_curves(directory: Path, curve: list[dict]) -> None:
         write_curve(directory / f"{key}.tsv", [{"step": row["step"], "tau": row[key]} for row in curve])
 
 
-def print_summary(name: str, metrics: dict, timing: dict) -> None:
+def print_summary(name: str, metrics: dict) -> None:
     for task in metrics["tasks"]:
         m = metrics[task]
         print(f"student {name} on {task}: return {m['return_mean']:.1f} +- {m['return_std']:.1f} "
               f"(teacher {m['teacher_return_mean']:.1f}, ratio {m['student_to_teacher']:.2f})")
-    print(f"trained in {timing['seconds']:.0f} s, {timing['steps_per_second']:.0f} steps/s")

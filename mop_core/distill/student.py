@@ -1,4 +1,5 @@
-"""The multi-task student of thesis 4.2: pi^S(s, i) from the state and a one-hot task id."""
+"""The multi-task student of thesis 4.2: pi^S(s, i) from the state and a one-hot task id, and a group
+of R such students trained as one vectorised model (:class:`StudentGroup`)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,15 @@ import torch
 from torch import nn
 
 from mop_core.config import require
-from mop_core.nn import DeterministicActor, GaussianActor, with_task_id
+from mop_core.nn import (
+    DeterministicActor,
+    GaussianActor,
+    bounded_log_std,
+    member_loop_pays,
+    mlp,
+    per_member_forward,
+    with_task_id,
+)
 
 
 @dataclass(frozen=True)
@@ -56,3 +65,68 @@ class Student(nn.Module):
     def hidden_layers(self) -> Sequence[nn.Module]:
         """The ReLU modules whose outputs are the hidden activations (thesis 6.2.1)."""
         return [m for m in self.actor.net if isinstance(m, nn.ReLU)]
+
+
+class StudentGroup(nn.Module):
+    """R students of one architecture trained together as one model with a leading run dimension.
+
+    Layer k holds the R students' weights as one ``[R, in, out]`` tensor (:class:`EnsembleLinear`),
+    so one forward, one backward and one optimiser step serve every run, while each run keeps its
+    own inputs ``obs [R, B, o]`` (its own data stream). Run r computes exactly what a
+    :class:`Student` with run r's weights computes (tested), and :meth:`member` returns it as one:
+    checkpoints, evaluation and every later stage see ordinary students.
+
+    On a CPU a group whose rows * width^2 is large runs member by member (plain GEMMs, hand-written
+    ReLU backward: :func:`~mop_core.nn.per_member_forward`), a small one as one batched GEMM per layer.
+    """
+
+    def __init__(self, students: Sequence[Student]):
+        super().__init__()
+        if not students:
+            raise ValueError("students: a group needs at least one student")
+        first = students[0]
+        if any((s.config, s.num_tasks, s.gaussian) != (first.config, first.num_tasks, first.gaussian)
+               for s in students):
+            raise ValueError("students: every student of a group must share its config, tasks and head")
+        self.config, self.num_tasks, self.gaussian, self.runs = first.config, first.num_tasks, first.gaussian, len(
+            students)
+        self.act_dim = first.actor.act_dim if first.gaussian else first.actor.net[-1].out_features
+        linears = [[m for m in s.actor.net if isinstance(m, nn.Linear)] for s in students]
+        sizes = [layer.in_features for layer in linears[0]] + [linears[0][-1].out_features]
+        self.net = mlp(sizes[0], sizes[1:-1], sizes[-1], ensemble_size=len(students))
+        with torch.no_grad():
+            for k, layer in enumerate(self.net[0::2]):
+                layer.weight.copy_(torch.stack([run[k].weight.t() for run in linears]))
+                layer.bias.copy_(torch.stack([run[k].bias.unsqueeze(0) for run in linears]))
+
+    def _raw(self, obs: torch.Tensor, task: torch.Tensor) -> torch.Tensor:
+        """``obs [R, B, o]`` and task ids ``[B]`` (the same layout for every run) -> ``[R, B, out]``."""
+        x = with_task_id(obs, task.expand(obs.shape[:-1]), self.num_tasks)
+        if member_loop_pays(x.shape[1], max(self.config.hidden_sizes), x.device):
+            return per_member_forward(self.net, x)
+        return self.net(x)
+
+    def forward(self, obs: torch.Tensor, task: torch.Tensor) -> torch.Tensor:
+        """Each run's action ``[R, B, k]`` (a Gaussian student's mean)."""
+        if self.gaussian:
+            return self.distribution(obs, task)[0]
+        return torch.tanh(self._raw(obs, task))
+
+    def distribution(self, obs: torch.Tensor, task: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Each run's (mu, sigma) ``[R, B, k]`` as :meth:`GaussianActor.distribution` computes it."""
+        if not self.gaussian:
+            raise TypeError("distribution: these students are deterministic (only KL students are Gaussian)")
+        mean, raw_log_std = self._raw(obs, task).split(self.act_dim, dim=-1)
+        return torch.tanh(mean), bounded_log_std(raw_log_std, self.config.log_std_min,
+                                                 self.config.log_std_max).exp()
+
+    def member(self, run: int) -> Student:
+        """Run ``run``'s student as a plain :class:`Student` (a copy, on the group's device)."""
+        linear_layers = self.net[0::2]
+        student = Student(self.config, linear_layers[0].in_features - self.num_tasks,
+                          self.act_dim, self.num_tasks, self.gaussian).to(linear_layers[0].weight.device)
+        with torch.no_grad():
+            for plain, layer in zip([m for m in student.actor.net if isinstance(m, nn.Linear)], linear_layers):
+                plain.weight.copy_(layer.weight[run].t())
+                plain.bias.copy_(layer.bias[run, 0])
+        return student
