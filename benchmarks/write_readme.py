@@ -138,6 +138,38 @@ def previous_sections() -> dict[str, str]:
     return {m.group(1): m.group(0) for m in re.finditer(r"<!-- bench:(\w+) -->.*?<!-- /bench:\1 -->", text, re.S)}
 
 
+GPU_FILES = ("gpu.txt", "tests.log", "rates.json", "plan.md", "short_plan.md", "short_timings.md", "repro.log")
+
+
+def gpu_section(directory: Path) -> str:
+    """The GPU section from the files ``benchmarks/gpu_check.sh`` wrote (it runs on a lent GPU machine,
+    not here): the card, the test suite's result on CUDA, the rates at the thesis sizes, the thesis
+    profile's estimated cost, and the shortened thesis repro's stage times next to their estimate."""
+    def read(name: str, tail: int | None = None) -> str:
+        path = directory / name
+        if not path.is_file():
+            return f"({name}: not written)"
+        lines = path.read_text().rstrip().splitlines()
+        return "\n".join(lines[-tail:] if tail else lines)
+
+    card = read("gpu.txt")
+    return "\n".join([
+        "<!-- bench:gpu -->", "## gpu", "",
+        "`bash benchmarks/gpu_check.sh` on a lent GPU machine (the script says what each part does), its",
+        f"files copied to `{directory.relative_to(ROOT).as_posix()}/` and rendered here by "
+        f"`python benchmarks/write_readme.py --gpu {directory.relative_to(ROOT).as_posix()}`.", "",
+        "Card (nvidia-smi) and software:", "", "```", card, "```", "",
+        "The test suite with `MOP_TEST_DEVICE=cuda` (learner tests and the tiny profile's `dvc repro` on CUDA), "
+        "last lines:", "", "```", read("tests.log", 6), "```", "",
+        "Rates at the thesis profile's sizes (`benchmarks/bench_rates.py`; student rates are group updates/s "
+        "for R runs):", "", "```json", read("rates.json"), "```", "",
+        read("plan.md"), "",
+        "The shortened thesis profile (every schedule at 0.1%, one level), measured stage times:", "",
+        read("short_timings.md"), "", "and what `mop_core.plan` estimated for it from the rates above:", "",
+        read("short_plan.md"), "",
+        "<!-- /bench:gpu -->"])
+
+
 def header(quick: bool, only: list[str] | None) -> str:
     lines = [
         "# Benchmarks",
@@ -170,13 +202,18 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2,
                         help="torch threads of the scripts that take --threads (default 2, the stages' threads)")
     parser.add_argument("--timeout", type=float, default=1800, help="seconds allowed per script (default 1800)")
+    parser.add_argument("--gpu", type=Path, help="render the gpu section from benchmarks/gpu_check.sh's files in "
+                                                 "this folder (and run nothing else unless --only names it)")
     args = parser.parse_args()
     started = time.perf_counter()
-    sections = previous_sections() if args.only else {}
+    sections = previous_sections() if args.only or args.gpu else {}
     for bench in BENCHES:
-        if args.only is None or bench.name in args.only:
+        if (args.only is None and args.gpu is None) or bench.name in (args.only or []):
             sections[bench.name] = run_bench(bench, args.threads, args.quick, args.timeout)
-    body = [sections[b.name] for b in BENCHES if b.name in sections]
+    if args.gpu is not None:
+        sections["gpu"] = gpu_section(args.gpu.resolve())
+    body = [sections[b.name] for b in BENCHES if b.name in sections] + ([sections["gpu"]] if "gpu" in sections
+                                                                         else [])
     README.write_text(header(args.quick, args.only) + "\n\n" + "\n\n".join(body) + "\n")
     print(f"wrote {README.relative_to(ROOT)} in {time.perf_counter() - started:.0f} s")
 

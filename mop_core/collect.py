@@ -50,7 +50,8 @@ class ScheduleConfig:
 
     total_steps: int  # gradient steps of the whole run: the expert snapshot
     medium_step: int  # gradient steps at the medium snapshot (early stop)
-    medium_target_return: float | None = None  # if set: medium = first evaluation reaching this return
+    medium_target_return: float | dict[str, float] | None = None  # if set: medium = the first evaluation
+    #   reaching this return (one number, or one per task: {stand: 458.85, walk: 681.4})
     warmup_steps: int = 5000  # env steps with uniformly random actions before learning starts
     eval_every: int = 10000  # gradient steps between learning-curve evaluations
     eval_episodes: int = 5  # episodes per learning-curve evaluation
@@ -66,6 +67,15 @@ class ScheduleConfig:
         require(self.medium_step < self.total_steps, "medium_step",
                 f"fewer gradient steps than total_steps={self.total_steps} (medium is an early stop "
                 "of the expert run)", self.medium_step)
+
+    def medium_target(self, task: str) -> float | None:
+        """Task ``task``'s medium target return (None: the medium snapshot is taken at ``medium_step``)."""
+        target = self.medium_target_return
+        if isinstance(target, dict):
+            require(task in target, "medium_target_return", f"a target return for every study task ({task!r} "
+                    "is missing)", target)
+            return target[task]
+        return target
 
 
 @dataclass(frozen=True)
@@ -162,15 +172,15 @@ class _Progress:
     fallback: _Snapshot | None = None  # closest evaluation below the target return so far
     last_losses: dict = field(default_factory=dict)
 
-    def record(self, row: dict, snap: _Snapshot, sched: ScheduleConfig) -> None:
+    def record(self, row: dict, snap: _Snapshot, sched: ScheduleConfig, target: float | None) -> None:
         """Add an evaluation row and choose the medium snapshot (fixed step or first target return)."""
         self.curve.append(row)
         self.last_losses = {}
         if self.medium is None and snap.gradient_steps < sched.total_steps:
-            if sched.medium_target_return is None:
+            if target is None:
                 if snap.gradient_steps == sched.medium_step:
                     self.medium = snap
-            elif row["return_mean"] >= sched.medium_target_return:
+            elif row["return_mean"] >= target:
                 self.medium = snap
             elif self.fallback is None or row["return_mean"] > self.fallback.curve_return:
                 self.fallback = snap
@@ -232,7 +242,8 @@ def train_behaviour(task: str, config: CollectConfig, seed: int, device: torch.d
             row = {"step": g, "env_step": t + 1, "return_mean": float(returns.mean()),
                    "return_std": float(returns.std()), "critic_loss": run.last_losses.get("critic_loss", math.nan),
                    "actor_loss": run.last_losses.get("actor_loss", math.nan)}
-            run.record(row, _Snapshot(agent.actor_state(), g, t + 1, row["return_mean"]), sched)
+            run.record(row, _Snapshot(agent.actor_state(), g, t + 1, row["return_mean"]), sched,
+                       sched.medium_target(task))
             bar.set_postfix(ret=f"{row['return_mean']:.0f}")
         if (resume is not None and step.timeout and g - saved_at >= sched.checkpoint_every
                 and t + 1 < total_env_steps):

@@ -61,7 +61,16 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:  # noqa: C901 (one br
         if value is None and type(None) in args:
             return None
         non_none = [a for a in args if a is not type(None)]
-        return _coerce(value, non_none[0], key)
+        if len(non_none) == 1:
+            return _coerce(value, non_none[0], key)
+        errors = []
+        for option in non_none:  # the first reading that fits (e.g. a number, else a mapping of numbers)
+            try:
+                return _coerce(value, option, key)
+            except ConfigError as err:
+                errors.append(str(err).removeprefix(f"{key}: ").removeprefix("expected ").split(", got ")[0])
+        raise ConfigError(f"{key}: expected {' or '.join(errors)}{' or null' if type(None) in args else ''}, "
+                          f"got {value!r}")
     if dataclasses.is_dataclass(annotation):
         if not isinstance(value, Mapping):
             raise ConfigError(f"{key}: expected a mapping of {annotation.__name__} fields, got {value!r}")
@@ -69,6 +78,8 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:  # noqa: C901 (one br
     if origin is dict:
         if not isinstance(value, Mapping):
             raise ConfigError(f"{key}: expected a mapping, got {value!r}")
+        if len(args) == 2 and args[1] is not Any:
+            return {k: _coerce(v, args[1], f"{key}.{k}") for k, v in value.items()}
         return dict(value)
     if origin is tuple:
         if not isinstance(value, (list, tuple)):

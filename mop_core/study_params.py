@@ -13,7 +13,7 @@ from typing import Any, Mapping
 
 from mop_core.catalogue import LOSS_ACTORS
 from mop_core.collect import CollectConfig, collect_configs
-from mop_core.config import require
+from mop_core.config import keys_under, require
 from mop_core.distill.distiller import distill_config
 from mop_core.evaluation import EvalConfig
 from mop_core.relabel import RelabelConfig
@@ -72,6 +72,9 @@ def check_params(params: Mapping[str, Any], where: str = "params.yaml") -> None:
         section(params, name)
     study = study_config(params)
     _, collect = collect_configs(params, study)
+    with keys_under("collect.schedule"):
+        for task in study.tasks:  # a per-task target return names every study task
+            collect.schedule.medium_target(task)
     typed_section(params, "relabel", RelabelConfig)
     for actor in teacher_grid(params).actors:
         teacher_config(params, study, actor)

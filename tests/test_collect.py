@@ -113,6 +113,25 @@ def test_medium_by_target_return(tiny_collect_config, tmp_path):
     assert replay.arrays["timeouts"][-1]
 
 
+def test_a_target_return_per_task_is_read_for_its_task_and_named_when_missing(tiny_params):
+    from mop_core.config import ConfigError, from_mapping
+    from mop_core.study_params import check_params
+
+    raw = dict(tiny_params["collect"]["schedule"]) | {"medium_target_return": {"stand": 458.85, "walk": 681}}
+    schedule = from_mapping(ScheduleConfig, raw, "collect.schedule")
+    assert schedule.medium_target("walk") == 681.0 and isinstance(schedule.medium_target("walk"), float)
+    assert from_mapping(ScheduleConfig, raw | {"medium_target_return": 500}, "s").medium_target("stand") == 500.0
+    with pytest.raises(ConfigError, match=r"collect.schedule.medium_target_return.walk: expected a number"):
+        from_mapping(ScheduleConfig, raw | {"medium_target_return": {"walk": "high"}}, "collect.schedule")
+    with pytest.raises(ConfigError, match=r"collect.schedule.medium_target_return: expected a number or a mapping"):
+        from_mapping(ScheduleConfig, raw | {"medium_target_return": [1, 2]}, "collect.schedule")
+    params = json.loads(json.dumps(tiny_params))
+    params["collect"]["schedule"]["medium_target_return"] = {"stand": 458.85}
+    with pytest.raises(ConfigError, match=r"collect.schedule.medium_target_return: expected a target return for "
+                                          r"every study task \('walk' is missing\)"):
+        check_params(params)
+
+
 @pytest.mark.parametrize("key,value,message", [
     ("schedule.medium_step", 400, r"collect.schedule.medium_step: expected fewer gradient steps than total_steps=300"),
     ("schedule.total_steps", 0, r"collect.schedule.total_steps: expected a positive integer"),

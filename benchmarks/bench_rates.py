@@ -1,0 +1,140 @@
+"""Training rates at a profile's network sizes on one device: what ``python -m mop_core.plan`` turns
+into the profile's cost.
+
+Measures in one process (after a warm-up; on CUDA every timed block ends with a synchronize):
+- TD3 updates/s at ``collect.td3`` (the collect stage's learner; its 1:1 env/update schedule adds env steps);
+- PBRL updates/s per actor type at ``train_teachers.pbrl`` (a teacher, and each task's update of the
+  naive multi-task baseline);
+- student updates/s for a group of R = 1 and R = 8 students (the distill stage trains every seed of a
+  (loss, pairing) as one group) at ``distill``, MSE and Q losses, 2 tasks: the group's updates/s, so
+  R runs of 8 cost R / (8 * rate_8) seconds per step each;
+- control steps/s of ``eval.rollout_envs`` walkers stepped together under a batched student policy.
+
+Writes the numbers as JSON (``--out``) with the device's name; ``mop_core.plan`` reads that file.
+
+Run: ``python benchmarks/bench_rates.py --profile profiles/thesis.yaml --device cuda --out rates.json``
+(``--quick`` times fewer updates: a smoke test).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import torch
+import yaml
+from bench_distill import profile as distill_profile
+from bench_pbrl import pbrl_config, random_batch
+
+from mop_core.agents.pbrl import PBRL
+from mop_core.agents.td3 import TD3, TD3Config
+from mop_core.config import from_mapping
+from mop_core.distill.distiller import Distiller
+from mop_core.distill.run import student_policy
+from mop_core.distill.states import TaskStates
+from mop_core.distill.student import Student
+from mop_core.nn import EnsembleCritic
+from mop_core.rollout import episode_returns
+from mop_core.runtime import configure_compute, resolve_device
+from mop_core.timings import machine_facts
+
+ROOT = Path(__file__).resolve().parents[1]
+GROUP_SIZES = (1, 8)
+
+
+def per_second(step, count: int, device: torch.device, repeats: int = 3) -> float:
+    """Median calls/s of ``step`` over ``repeats`` blocks of ``count`` calls (one warm-up block)."""
+    def block() -> float:
+        start = time.perf_counter()
+        for _ in range(count):
+            step()
+        if device.type == "cuda":
+            torch.cuda.synchronize(device)
+        return time.perf_counter() - start
+
+    block()
+    times = sorted(block() for _ in range(repeats))
+    return count / times[len(times) // 2]
+
+
+def td3_rate(params: dict, device: torch.device, count: int) -> float:
+    config = from_mapping(TD3Config, params["collect"]["td3"], "collect.td3")
+    agent = TD3(config, 24, 6, 0, device)
+    batch = random_batch(config.batch_size).to(device)
+    return per_second(lambda: agent.update(batch), count, device)
+
+
+def pbrl_rates(profile: Path, device: torch.device, count: int) -> dict[str, float]:
+    base = pbrl_config(profile)
+    rates = {}
+    for actor in ("deterministic", "gaussian"):
+        config = from_mapping(type(base), {**base.__dict__, "actor": actor}, "train_teachers.pbrl")
+        agent = PBRL(config, 24, 6, 0, device)
+        batch = random_batch(config.batch_size).to(device)
+        rates[actor] = per_second(lambda: agent.update(batch), count, device)
+    return rates
+
+
+def student_rates(profile: Path, params: dict, device: torch.device, count: int) -> dict[str, dict[str, float]]:
+    config, teacher_sizes, _ = distill_profile(profile)
+    states = 100_000
+    g = torch.Generator().manual_seed(0)
+    targets = [TaskStates(f"task{i}", torch.randn(states, 24, generator=g).to(device),
+                          (torch.rand(states, 6, generator=g) * 2 - 1).to(device), None, {}) for i in range(2)]
+    critics = [EnsembleCritic(24, 6, teacher_sizes, params["train_teachers"]["pbrl"]["ensemble_size"])
+               for _ in range(2)]
+    rates: dict[str, dict[str, float]] = {}
+    for loss in ("mse", "q"):
+        loss_config = from_mapping(type(config), {**config.__dict__, "loss": loss,
+                                                  "student": config.student.__dict__}, "distill")
+        rates[loss] = {}
+        for runs in GROUP_SIZES:
+            group = Distiller(loss_config, [targets] * runs, 24, 6, list(range(runs)),
+                              critics if loss == "q" else None, device)
+            rates[loss][str(runs)] = per_second(group.update, count, device)
+    return rates
+
+
+def rollout_rate(profile: Path, device: torch.device, envs: int | None = None) -> float:
+    """Control steps/s of ``envs`` walkers (default ``eval.rollout_envs``) stepped together under one
+    batched student policy (200-step episodes)."""
+    config, _, profile_envs = distill_profile(profile)
+    envs = profile_envs if envs is None else envs
+    student = Student(config.student, 24, 6, 2).to(device).eval()
+    policy = student_policy(student, 0, device)
+    length = 200
+    episode_returns(policy, "walk", list(range(envs)), length, envs)  # warm-up
+    start = time.perf_counter()
+    episode_returns(policy, "walk", list(range(envs)), length, envs)
+    return envs * length / (time.perf_counter() - start)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--profile", default=str(ROOT / "profiles" / "thesis.yaml"))
+    parser.add_argument("--device", default="auto", help="auto | cpu | cuda[:N]")
+    parser.add_argument("--threads", type=int, default=2, help="torch threads")
+    parser.add_argument("--quick", action="store_true", help="a few updates per measure (a smoke test)")
+    parser.add_argument("--out", help="write the rates as JSON here")
+    args = parser.parse_args()
+    configure_compute(args.threads)
+    device = resolve_device(args.device, "--device")
+    profile = Path(args.profile)
+    params = yaml.safe_load(profile.read_text())
+    count = 3 if args.quick else 50
+    result = {"profile": profile.name, "device": str(device), "threads": args.threads,
+              "machine": machine_facts(device),
+              "td3_updates_per_second": td3_rate(params, device, count),
+              "pbrl_updates_per_second": pbrl_rates(profile, device, count),
+              "student_group_updates_per_second": student_rates(profile, params, device, count),
+              "rollout_control_steps_per_second": rollout_rate(profile, device),
+              "single_env_control_steps_per_second": rollout_rate(profile, device, envs=1)}
+    print(json.dumps(result, indent=1))
+    if args.out:
+        Path(args.out).write_text(json.dumps(result, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,50 @@
+"""mop_core.plan: a profile's cost from measured rates, and shortened profiles that still run."""
+
+from __future__ import annotations
+
+import pytest
+import yaml
+from conftest import ROOT
+
+from mop_core.plan import Rates, one_level_grid, scaled_profile, stage_hours
+from mop_core.study_params import check_params
+
+THESIS = yaml.safe_load((ROOT / "profiles" / "thesis.yaml").read_text())
+RATES = Rates(device="test", td3=100.0, pbrl={"deterministic": 50.0, "gaussian": 40.0},
+              student={"mse": {1: 200.0, 8: 100.0}, "q": {1: 100.0, 8: 40.0}}, rollout=5000.0, single_env=2000.0)
+
+
+def test_student_group_cost_is_interpolated_between_the_measured_sizes():
+    assert RATES.student_seconds_per_update("mse", 1) == pytest.approx(1 / 200)
+    assert RATES.student_seconds_per_update("mse", 8) == pytest.approx(1 / 100)
+    four = RATES.student_seconds_per_update("mse", 4)
+    assert 1 / 200 < four < 1 / 100 and four == pytest.approx(1 / 200 + (1 / 100 - 1 / 200) * 3 / 7)
+    assert RATES.student_seconds_per_update("kl", 8) == RATES.student_seconds_per_update("mse", 8)
+    assert RATES.student_seconds_per_update("q", 16) == pytest.approx(16 / 8 / 40)  # linear beyond
+
+
+def test_teacher_hours_are_runs_times_updates_over_the_rate_plus_their_rollouts():
+    hours = stage_hours(THESIS, RATES)
+    teachers = THESIS["train_teachers"]
+    runs = len(THESIS["study"]["tasks"]) * len(THESIS["study"]["levels"]) * len(teachers["seeds"])
+    steps, sched = teachers["schedule"]["steps"], teachers["schedule"]
+    rollout = 1000 * (steps // sched["eval_every"] * sched["eval_episodes"] + sched["final_eval_episodes"]) / 5000.0
+    expected = runs * (steps / 50.0 + rollout + steps / 40.0 + rollout) / 3600
+    assert hours["train_teachers"] == (2 * runs, pytest.approx(expected))
+    doubled = stage_hours(THESIS, Rates(**{**RATES.__dict__, "pbrl": {"deterministic": 100.0, "gaussian": 80.0},
+                                         "rollout": 1e12}))
+    assert doubled["train_teachers"][1] < hours["train_teachers"][1] / 2  # faster updates, free rollouts
+
+
+@pytest.mark.parametrize("fraction", [0.001, 0.0001])
+def test_a_shortened_thesis_profile_passes_the_params_check_and_keeps_the_grid(fraction):
+    short = scaled_profile(THESIS, fraction)
+    check_params(short)  # every cross-check (batch sizes vs data, medium before expert) holds
+    assert short["train_teachers"]["schedule"]["steps"] == max(10, round(1_000_000 * fraction))
+    assert short["train_teachers"]["pbrl"]["hidden_sizes"] == THESIS["train_teachers"]["pbrl"]["hidden_sizes"]
+    assert short["distill"]["seeds"] == THESIS["distill"]["seeds"]
+    one = one_level_grid(short)
+    check_params(one)
+    assert one["study"]["levels"] == [THESIS["study"]["levels"][0]] and one["train_teachers"]["seeds"] == [0]
+    assert one["distill"]["pairings"] == [THESIS["study"]["levels"][0]]
+    assert stage_hours(one, RATES)["distill"][0] == 3 * len(THESIS["distill"]["seeds"])
