@@ -1,7 +1,8 @@
 """Speed of the collect and relabel building blocks, measured in one run on this machine.
 
-Prints: dm_control env steps/s; batched stepping of many walkers (our VectorWalkerEnv with a
-batched policy, and MuJoCo's multi-threaded ``mujoco.rollout``) with ratios to one env; relabel
+Prints: dm_control env steps/s; batched stepping of many walkers with a batched policy (members
+stepped through dm_control, as before issue 16, vs our VectorWalkerEnv's raw MuJoCo step in 1 and 2
+threads), and MuJoCo's multi-threaded open-loop ``mujoco.rollout`` (the ceiling), with ratios; relabel
 transitions/s (vectorised formula vs physics replay, target >= 1M/s vectorised); TD3 updates/s at
 the quick (params.yaml) and thesis (profiles/thesis.yaml) sizes. Each figure is the median of a
 few timed repeats after a warm-up. Run: ``python benchmarks/bench_collect.py [--quick-only]``.
@@ -23,7 +24,7 @@ from mop_core.agents.td3 import TD3, TD3Config
 from mop_core.config import from_mapping
 from mop_core.data import ReplayBuffer
 from mop_core.data.hdf5 import Dataset
-from mop_core.envs import VectorWalkerEnv, WalkerEnv
+from mop_core.envs import VectorStep, VectorWalkerEnv, WalkerEnv, set_step_threads
 from mop_core.relabel import relabel_rewards
 from mop_core.runtime import configure_compute
 
@@ -47,9 +48,22 @@ def _actor() -> torch.nn.Module:
                                torch.nn.Linear(256, 6), torch.nn.Tanh())
 
 
-def vector_env_steps_per_second(num_envs: int = 16, steps: int = 200) -> float:
-    """Closed-loop rollout steps/s: ``num_envs`` walkers, one policy forward per control step."""
-    env = VectorWalkerEnv("walk", list(range(num_envs)), episode_length=10**9)
+class DmControlVectorEnv(VectorWalkerEnv):
+    """The batched env as it was up to issue 15: each member stepped through dm_control's own step."""
+
+    def step(self, actions: np.ndarray) -> VectorStep:
+        steps = [env.step(a) for env, a in zip(self.envs, actions)]
+        return VectorStep(np.stack([s.observation for s in steps]), np.array([s.reward for s in steps]),
+                          np.array([s.timeout for s in steps]), np.stack([s.physics for s in steps]),
+                          np.stack([s.features for s in steps]))
+
+
+def vector_env_steps_per_second(num_envs: int = 16, steps: int = 200, env_class: type = VectorWalkerEnv,
+                                threads: int = 1) -> float:
+    """Closed-loop rollout steps/s: ``num_envs`` walkers, one policy forward per control step, the
+    walkers stepped in ``threads`` threads."""
+    set_step_threads(threads)
+    env = env_class("walk", list(range(num_envs)), episode_length=10**9)
     actor = _actor()
     obs = env.reset()
 
@@ -121,9 +135,14 @@ def main() -> None:
     print(f"dm_control walker, one env:                 {single:10,.0f} steps/s")
     one_policy = vector_env_steps_per_second(num_envs=1, steps=1000)
     print(f"one env + a 256x256 policy per step:        {one_policy:10,.0f} steps/s")
-    vector = vector_env_steps_per_second()
-    print(f"VectorWalkerEnv, 16 envs + batched policy:  {vector:10,.0f} steps/s  ({vector / one_policy:.2f}x one env "
-          f"+ policy; {vector / single:.2f}x the bare env)")
+    before = vector_env_steps_per_second(env_class=DmControlVectorEnv)
+    print(f"16 envs, dm_control steps (before issue 16): {before:10,.0f} steps/s  ({before / one_policy:.2f}x one env "
+          f"+ policy)")
+    for threads in (1, 2):
+        vector = vector_env_steps_per_second(threads=threads)
+        print(f"VectorWalkerEnv, 16 envs, {threads} step thread(s): {vector:10,.0f} steps/s  ({vector / before:.2f}x "
+              f"dm_control steps; {vector / single:.2f}x the bare env)")
+    set_step_threads(1)
     for threads in (1, 2):
         batched = mujoco_rollout_steps_per_second(threads=threads)
         print(f"mujoco.rollout, 64 walkers, {threads} thread(s):    {batched:10,.0f} steps/s  "

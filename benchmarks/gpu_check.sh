@@ -1,26 +1,31 @@
 #!/usr/bin/env bash
 # The GPU check of the thesis profile, as one prepared run (issue 16, part 4), in under 10 minutes:
-#   1. the test suite with every learner test and the tiny profile's `dvc repro` on CUDA (MOP_TEST_DEVICE);
-#   2. updates/s of TD3, PBRL and student groups (R = 1, 8) at the thesis profile's sizes
+#   1. updates/s of TD3, PBRL and student groups (R = 1, 8) at the thesis profile's sizes
 #      (benchmarks/bench_rates.py), and the thesis profile's estimated cost from them (mop_core.plan);
-#   3. a shortened thesis-profile `dvc repro`: every schedule at 0.1%, one level (mop_core.plan --scale
-#      --one-level), with its per-stage times next to the plan's estimate for that same shortened profile.
-# Results land in $OUT (or ./gpu_check_out): gpu.txt, tests.log, rates.json, plan.md, repro.log, short_plan.md,
-# short_timings.md.
+#   2. a shortened thesis-profile `dvc repro`: every schedule at 0.1%, one level, two learning-curve points per
+#      run (mop_core.plan --scale --one-level --max-evaluations), its per-stage times next to the plan's
+#      estimate for that same shortened profile;
+#   3. the test suite with every learner test and the tiny profile's `dvc repro` on CUDA (MOP_TEST_DEVICE).
+# Results land in $OUT (or ./gpu_check_out): gpu.txt, rates.json, rates.log, plan.md, repro.log, short_plan.md,
+# short_timings.md, tests.log.
 #
 # On a machine without a package registry (the GPU machines lent here), build the site bundle first, here:
 #   python benchmarks/gpu_bundle.py --out .gpu/site.tar.xz      # ~30 MiB: dm_control, mujoco, dvc, ...
 # and send .gpu along; the script unpacks it when it is there. Tried on CPU first with
 #   MOP_GPU_CHECK_DEVICE=cpu MOP_GPU_CHECK_TESTS=tests/test_distill.py MOP_GPU_CHECK_RATES_ARGS=--quick \
 #   MOP_GPU_CHECK_SCALE=0.0001 bash benchmarks/gpu_check.sh
-# Time limits per part: MOP_GPU_CHECK_LIMITS="tests rates repro" seconds (default "300 90 170").
+# Time limits per part: MOP_GPU_CHECK_LIMITS="rates repro tests" seconds (default "60 240 280"). Measured on an
+# H200 (2026-11-27): rates 34 s; the shortened repro ran collect, teachers and the baseline in ~90 s, its rollouts
+# (~1-1.6k control steps/s on that machine) dominate the rest; the suite on CUDA took more than 290 s (the
+# tiny dvc repro tests), the rest of it 50 s with 12 workers. At most 8 files come back from the machine: keep
+# the outputs below to 8.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 ROOT=$PWD
 OUT=${OUT:-$ROOT/gpu_check_out}
 DEVICE=${MOP_GPU_CHECK_DEVICE:-cuda}
 TESTS=${MOP_GPU_CHECK_TESTS:-tests}
-read -r LIMIT_TESTS LIMIT_RATES LIMIT_REPRO <<< "${MOP_GPU_CHECK_LIMITS:-300 90 170}"
+read -r LIMIT_RATES LIMIT_REPRO LIMIT_TESTS <<< "${MOP_GPU_CHECK_LIMITS:-60 240 280}"
 SCALE=${MOP_GPU_CHECK_SCALE:-0.001}
 mkdir -p "$OUT"
 started=$(date +%s)
@@ -34,29 +39,22 @@ else
   export PYTHONPATH=$ROOT${PYTHONPATH:+:$PYTHONPATH}
 fi
 PY=$(command -v python3)
+# mop_core's own metadata (timing records name its version): an editable install, offline, no dependencies
+"$PY" -m pip install -q --no-deps --no-build-isolation --no-index -e . > /tmp/mop_install.log 2>&1 \
+  || { echo "pip install -e . failed:"; cat /tmp/mop_install.log; } >> "$OUT/gpu.txt"
 mkdir -p /tmp/mop_bin
 command -v python >/dev/null || ln -sf "$PY" /tmp/mop_bin/python
 command -v dvc >/dev/null || printf '#!/bin/sh\nexec %s -m dvc "$@"\n' "$PY" > /tmp/mop_bin/dvc
 chmod +x /tmp/mop_bin/* 2>/dev/null
-export PATH=/tmp/mop_bin:$PATH MOP_PROGRESS=0 PYTHONUNBUFFERED=1 MUJOCO_GL=${MUJOCO_GL:-egl}
+export PATH=/tmp/mop_bin:$PATH MOP_PROGRESS=0 PYTHONUNBUFFERED=1
 git config --global user.name >/dev/null || git config --global user.name gpu-check
 git config --global user.email >/dev/null || git config --global user.email gpu-check@localhost
-(nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv 2>&1 || echo "no nvidia-smi") > "$OUT/gpu.txt"
+(nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv 2>&1 || echo "no nvidia-smi") >> "$OUT/gpu.txt"
 "$PY" -c "import torch, mujoco, dm_control, dvc; print('torch', torch.__version__, 'cuda', torch.cuda.is_available())" \
   2>&1 | tee -a "$OUT/gpu.txt"
 stamp "environment ready"
 
-# ---- 1. the test suite on the device ------------------------------------------------------------------
-workers=$(( $(nproc) > 8 ? 8 : $(nproc) ))
-parallel=""
-"$PY" -c "import xdist" 2>/dev/null && parallel="-n $workers --dist loadfile"  # pytest-xdist, where installed
-stamp "tests ($TESTS) on $DEVICE ${parallel:-in one process}"
-MOP_TEST_DEVICE=$DEVICE timeout "$LIMIT_TESTS" "$PY" -m pytest -q -p no:cacheprovider $parallel $TESTS \
-  > "$OUT/tests.log" 2>&1
-echo "tests exit $?" >> "$OUT/tests.log"
-tail -n 15 "$OUT/tests.log"
-
-# ---- 2. rates at the thesis sizes and the thesis profile's estimated cost ------------------------------
+# ---- 1. rates at the thesis sizes and the thesis profile's estimated cost ------------------------------
 stamp "rates at the thesis profile's sizes"
 (cd benchmarks && timeout "$LIMIT_RATES" "$PY" bench_rates.py --profile ../profiles/thesis.yaml --device "$DEVICE" \
   ${MOP_GPU_CHECK_RATES_ARGS:-} --out "$OUT/rates.json" > "$OUT/rates.log" 2>&1) || echo "rates failed: see rates.log"
@@ -64,13 +62,13 @@ if [ -f "$OUT/rates.json" ]; then
   "$PY" -m mop_core.plan profiles/thesis.yaml --rates "$OUT/rates.json" | tee "$OUT/plan.md"
 fi
 
-# ---- 3. a shortened thesis-profile dvc repro ----------------------------------------------------------
+# ---- 2. a shortened thesis-profile dvc repro ----------------------------------------------------------
 stamp "shortened thesis profile (scale $SCALE, one level): dvc repro"
 SHORT=/tmp/mop_short
 rm -rf "$SHORT" && mkdir -p "$SHORT"
 "$PY" -c "import sys; sys.path.insert(0, 'scripts'); from bad_inputs import copy_project; from pathlib import Path; \
 copy_project(Path('.'), Path('$SHORT'))"
-"$PY" -m mop_core.plan profiles/thesis.yaml --scale "$SCALE" --one-level --out "$SHORT/params.yaml"
+"$PY" -m mop_core.plan profiles/thesis.yaml --scale "$SCALE" --one-level --max-evaluations 2 --out "$SHORT/params.yaml"
 sed -i "s/^  device: .*/  device: $DEVICE/" "$SHORT/params.yaml"
 if [ -f "$OUT/rates.json" ]; then
   "$PY" -m mop_core.plan "$SHORT/params.yaml" --rates "$OUT/rates.json" > "$OUT/short_plan.md"
@@ -80,5 +78,14 @@ fi
 tail -n 5 "$OUT/repro.log"
 (cd "$SHORT" && "$PY" -m mop_core.timings > "$OUT/short_timings.md" 2>&1)
 cat "$OUT/short_timings.md"
-[ -f "$SHORT/results/report.md" ] && cp "$SHORT/results/report.md" "$OUT/short_report.md"
+# ---- 3. the test suite on the device (last: the part most likely to run long) -------------------------
+workers=$(( $(nproc) > 8 ? 8 : $(nproc) ))
+parallel=""
+"$PY" -c "import xdist" 2>/dev/null && parallel="-n $workers --dist loadfile"  # pytest-xdist, where installed
+stamp "tests ($TESTS) on $DEVICE ${parallel:-in one process}"
+MOP_TEST_DEVICE=$DEVICE timeout "$LIMIT_TESTS" "$PY" -m pytest -q -p no:cacheprovider $parallel $TESTS \
+  > "$OUT/tests.log" 2>&1
+echo "tests exit $?" >> "$OUT/tests.log"
+tail -n 15 "$OUT/tests.log"
+
 stamp "done"

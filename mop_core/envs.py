@@ -13,9 +13,11 @@ exactly ``episode_length`` steps; walker never terminates, an episode end is a t
 from __future__ import annotations
 
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Sequence
 
+import mujoco
 import numpy as np
 
 from mop_core.tasks import WalkerTask, get_task
@@ -24,6 +26,11 @@ OBS_DIM = 24
 ACT_DIM = 6
 PHYSICS_DIM = 18
 EPISODE_LENGTH = 1000
+_ORIENTATION_COLUMNS = [0, 2]  # the xx and xz entries of each body's row-major xmat: walker.orientations()
+
+
+class PhysicsError(RuntimeError):
+    """MuJoCo reported an invalid state during a step (dm_control raises its own PhysicsError then)."""
 
 
 def _suite():
@@ -116,35 +123,126 @@ class VectorStep:
     features: np.ndarray  # [K, 3]
 
 
+_STEP_THREADS = 1  # threads a VectorWalkerEnv steps its members with (MuJoCo releases the GIL while it steps)
+_POOL: ThreadPoolExecutor | None = None
+
+
+def set_step_threads(threads: int) -> None:
+    """Step the members of every :class:`VectorWalkerEnv` in ``threads`` threads (each a share of the
+    walkers; results do not depend on it). ``mop_core.runtime.configure_compute`` sets it to the
+    process's torch threads: a stage given 2 cores uses both for its rollouts too."""
+    global _STEP_THREADS, _POOL
+    if threads < 1:
+        raise ValueError(f"threads: expected a positive integer, got {threads!r}")
+    if threads != _STEP_THREADS and _POOL is not None:
+        _POOL.shutdown()
+        _POOL = None
+    _STEP_THREADS = threads
+
+
+def _pool() -> ThreadPoolExecutor:
+    global _POOL
+    if _POOL is None:
+        _POOL = ThreadPoolExecutor(_STEP_THREADS, thread_name_prefix="walker-step")
+    return _POOL
+
+
+@dataclass
+class _Member:
+    """One walker's raw MuJoCo model and data, with views of the arrays a step reads."""
+
+    model: mujoco.MjModel
+    data: mujoco.MjData
+
+    def __post_init__(self) -> None:
+        d = self.data
+        self.ctrl, self.xmat, self.xpos, self.qpos, self.qvel = d.ctrl, d.xmat, d.xpos, d.qpos, d.qvel
+        self.sensordata, self.warnings = d.sensordata, d.warning.number
+
+
 class VectorWalkerEnv:
     """K walker environments stepped together so a policy acts on all K states in one batch.
 
     All members share the episode length and the walker never terminates early, so they reset
-    together; member k is seeded with ``seeds[k]``.
+    together; member k is seeded with ``seeds[k]``. Resets go through dm_control (its initial-state
+    randomisation, exactly); steps go straight to MuJoCo on each member's own ``MjData``, doing what
+    dm_control's legacy step does and nothing else: ``ctrl <- action``, ``mj_step2``, ``mj_step`` x
+    (n_sub_steps - 1), ``mj_step1`` (so positions, orientations and sensors are in sync with the new
+    state: the "legacy-step sensor timing"), and a :class:`PhysicsError` if MuJoCo raised a new
+    warning (as dm_control's ``check_invalid_state``). The observation and reward features are read
+    from the arrays dm_control reads (``xmat``, ``xpos``, ``qvel``, the torso subtree velocity
+    sensor) and the reward is the task's vectorised formula. Observations, states and features are bit
+    for bit :class:`WalkerEnv`'s dm_control step's over whole episodes, rewards equal to the last
+    place (the formula vs dm_control's ``tolerance``; tested), with dm_control's per-step Python (named indexing,
+    the observation dict, the reward's tolerance calls) skipped, and the members stepped in
+    :func:`set_step_threads` threads (benchmarks/bench_collect.py measures both).
     """
 
     def __init__(self, task: str | WalkerTask, seeds: Sequence[int], episode_length: int = EPISODE_LENGTH):
         if len(seeds) == 0:
             raise ValueError("seeds: expected at least one seed")
         self.envs = [WalkerEnv(task, seed, episode_length) for seed in seeds]
-        self.episode_length = episode_length
+        self.task, self.episode_length = self.envs[0].task, episode_length
+        self._members = [_Member(env.physics.model.ptr, env.physics.data.ptr) for env in self.envs]
+        model = self._members[0].model
+        self._torso = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "torso")
+        self._velocity = int(model.sensor_adr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR,
+                                                                "torso_subtreelinvel")])
+        self._sub_steps = self.envs[0].dm_env._n_sub_steps
+        self._rk4 = model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4
+        self._t = 0
 
     @property
     def num_envs(self) -> int:
         return len(self.envs)
 
     def reset(self) -> np.ndarray:
+        self._t = 0
         return np.stack([env.reset() for env in self.envs])
 
+    def _advance(self, member: _Member) -> None:
+        """dm_control's ``Physics.step(n_sub_steps)`` with ``legacy_step`` (engine.py), on raw MuJoCo."""
+        model, data = member.model, member.data
+        warned = int(member.warnings.sum())
+        if self._rk4:
+            mujoco.mj_step(model, data, self._sub_steps)
+        else:  # mj_step1 already ran for this state at the end of the previous step (or the reset)
+            mujoco.mj_step2(model, data)
+            if self._sub_steps > 1:
+                mujoco.mj_step(model, data, self._sub_steps - 1)
+        mujoco.mj_step1(model, data)
+        if int(member.warnings.sum()) > warned:
+            raise PhysicsError(f"walker {self.task.name}: MuJoCo warnings {member.warnings.tolist()} "
+                               "(an invalid physics state)")
+
+    def _step_members(self, members: range, actions: np.ndarray, observation: np.ndarray, physics: np.ndarray,
+                      features: np.ndarray) -> None:
+        torso, velocity = self._torso, self._velocity
+        for i in members:
+            m = self._members[i]
+            np.copyto(m.ctrl, actions[i])
+            self._advance(m)
+            observation[i, :14] = m.xmat[1:, 0:3:2].ravel()  # walker.orientations(): each body's xx, xz
+            height = m.xpos[torso, 2]
+            observation[i, 14] = height  # torso_height()
+            observation[i, 15:] = m.qvel  # velocity()
+            physics[i, :9], physics[i, 9:] = m.qpos, m.qvel  # Physics.get_state(): qpos, qvel (no act)
+            features[i] = (height, m.xmat[torso, 8], m.sensordata[velocity])
+
     def step(self, actions: np.ndarray) -> VectorStep:
-        steps = [env.step(a) for env, a in zip(self.envs, actions)]
-        return VectorStep(
-            observation=np.stack([s.observation for s in steps]),
-            reward=np.array([s.reward for s in steps]),
-            timeout=np.array([s.timeout for s in steps]),
-            physics=np.stack([s.physics for s in steps]),
-            features=np.stack([s.features for s in steps]),
-        )
+        actions = np.asarray(actions, dtype=np.float64)
+        k = len(self.envs)
+        observation, physics, features = np.empty((k, OBS_DIM)), np.empty((k, PHYSICS_DIM)), np.empty((k, 3))
+        shares = min(_STEP_THREADS, k)
+        if shares == 1:
+            self._step_members(range(k), actions, observation, physics, features)
+        else:
+            bounds = np.linspace(0, k, shares + 1).astype(int)
+            list(_pool().map(lambda lo, hi: self._step_members(range(lo, hi), actions, observation, physics,
+                                                               features), bounds[:-1], bounds[1:]))
+        self._t += 1
+        return VectorStep(observation=observation, reward=self.task.reward(features),
+                          timeout=np.full(k, self._t >= self.episode_length), physics=physics, features=features)
 
 
 def physics_replay_rewards(physics_states: np.ndarray, tasks: Sequence[str | WalkerTask]) -> dict[str, np.ndarray]:

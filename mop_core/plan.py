@@ -135,17 +135,22 @@ SCALED = [(("collect", "schedule"), "total_steps", 20), (("collect", "schedule")
                        ("final_eval_episodes", 1))]
 
 
-def scaled_profile(params: Mapping[str, Any], fraction: float) -> dict:
+def scaled_profile(params: Mapping[str, Any], fraction: float, max_evaluations: int | None = None) -> dict:
     """A copy of ``params`` with every schedule length and episode count times ``fraction`` (rounded,
     at least a floor that keeps each stage meaningful): the same grid of runs, sizes and code paths,
     shortened, e.g. a smoke run of the thesis profile on a new machine. Batch sizes are capped at the
-    data a shortened profile produces."""
+    data a shortened profile produces. ``max_evaluations``: at most this many learning-curve
+    evaluations per run (a shortened run's time otherwise goes to rolling out its curve)."""
     out = json.loads(json.dumps(params))
     for path, key, floor in SCALED:
         section = out
         for name in path:
             section = section[name]
         section[key] = max(floor, round(section[key] * fraction))
+    if max_evaluations is not None:
+        for schedule, steps in ((out["collect"]["schedule"], "total_steps"),
+                                (out["train_teachers"]["schedule"], "steps"), (out["distill"]["schedule"], "steps")):
+            schedule["eval_every"] = max(schedule["eval_every"], -(-schedule[steps] // max_evaluations))
     collect = out["collect"]["schedule"]
     collect["medium_step"] = min(collect["medium_step"], collect["total_steps"] // 2)
     collect["medium_target_return"] = None
@@ -175,9 +180,10 @@ def one_level_grid(params: Mapping[str, Any]) -> dict:
 def plan_table(params: Mapping[str, Any], rates: Rates) -> str:
     rows = stage_hours(params, rates)
     lines = [f"Estimated cost on {rates.device} (one device, stages one after another):", "",
-             "| stage | runs | hours |", "|---|---|---|"]
-    lines += [f"| {stage} | {runs} | {hours:.2f} |" for stage, (runs, hours) in rows.items()]
-    lines.append(f"| **total** | | **{sum(h for _, h in rows.values()):.1f}** |")
+             "| stage | runs | seconds | hours |", "|---|---|---|---|"]
+    lines += [f"| {stage} | {runs} | {hours * 3600:.0f} | {hours:.2f} |" for stage, (runs, hours) in rows.items()]
+    total = sum(h for _, h in rows.values())
+    lines.append(f"| **total** | | **{total * 3600:.0f}** | **{total:.1f}** |")
     return "\n".join(lines)
 
 
@@ -187,13 +193,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--rates", help="a JSON written by benchmarks/bench_rates.py")
     parser.add_argument("--scale", type=float, help="write the profile shortened to this fraction (--out)")
     parser.add_argument("--one-level", action="store_true", help="with --scale: one level, one teacher seed")
+    parser.add_argument("--max-evaluations", type=int, help="with --scale: learning-curve points per run")
     parser.add_argument("--out", help="where --scale writes the shortened profile")
     args = parser.parse_args(argv)
     params = yaml.safe_load(Path(args.profile).read_text())
     if args.scale is not None:
         if not args.out or not 0 < args.scale <= 1:
             parser.error("--scale needs a fraction in (0, 1] and --out")
-        params = scaled_profile(params, args.scale)
+        params = scaled_profile(params, args.scale, args.max_evaluations)
         params = one_level_grid(params) if args.one_level else params
         Path(args.out).write_text(yaml.safe_dump(params, sort_keys=False))
         if args.rates is None:

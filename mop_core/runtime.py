@@ -70,8 +70,12 @@ def keep_freed_memory() -> bool:
 
 def configure_compute(threads: int) -> None:
     """The process settings every compute stage, worker and benchmark starts with: ``threads``
-    torch threads (:func:`set_threads`) and freed memory kept for reuse (:func:`keep_freed_memory`)."""
+    torch threads (:func:`set_threads`), as many threads stepping batched walkers
+    (:func:`mop_core.envs.set_step_threads`), and freed memory kept for reuse (:func:`keep_freed_memory`)."""
+    from mop_core.envs import set_step_threads
+
     set_threads(threads)
+    set_step_threads(threads)
     keep_freed_memory()
 
 

@@ -11,10 +11,12 @@ from mop_core.envs import (
     ACT_DIM,
     OBS_DIM,
     PHYSICS_DIM,
+    PhysicsError,
     VectorWalkerEnv,
     WalkerEnv,
     flatten_observation,
     physics_replay_rewards,
+    set_step_threads,
 )
 from mop_core.tasks import get_task
 
@@ -90,10 +92,50 @@ def test_a_vector_env_equals_its_members_stepped_one_by_one():
         assert batch.observation.shape == (3, 24) and batch.physics.shape == (3, 18)
         assert batch.features.shape == (3, 3) and batch.reward.shape == (3,) and batch.timeout.dtype == bool
         np.testing.assert_array_equal(batch.observation, np.stack([s.observation for s in steps]))
-        np.testing.assert_array_equal(batch.reward, [s.reward for s in steps])
+        np.testing.assert_allclose(batch.reward, [s.reward for s in steps], rtol=1e-15, atol=1e-16)
         np.testing.assert_array_equal(batch.physics, np.stack([s.physics for s in steps]))
         np.testing.assert_array_equal(batch.features, np.stack([s.features for s in steps]))
         np.testing.assert_array_equal(batch.timeout, [t == length - 1] * 3)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+@pytest.mark.parametrize("task", ["stand", "walk", "run"])
+def test_the_raw_mujoco_step_equals_dm_controls_step_bit_for_bit_over_whole_episodes(task, threads):
+    """The vector env steps MuJoCo directly (legacy-step order, sensors in sync after mj_step1) and
+    computes the reward by the task's formula; dm_control's own step is the reference: every
+    observation, physics state and feature bit for bit equal, every reward to the last place, over two
+    full 1000-step episodes (the second after a reset), whatever the number of stepping threads."""
+    seeds = [11, 12, 13]
+    set_step_threads(threads)
+    try:
+        vector = VectorWalkerEnv(task, seeds, episode_length=1000)
+        singles = [WalkerEnv(task, seed, episode_length=1000) for seed in seeds]
+        for episode in range(2):
+            np.testing.assert_array_equal(vector.reset(), np.stack([env.reset() for env in singles]))
+            for actions in _actions(1000, 3, seed=episode):
+                batch = vector.step(actions)
+                steps = [env.step(a) for env, a in zip(singles, actions)]
+                for key in ("observation", "physics", "features", "timeout"):
+                    np.testing.assert_array_equal(getattr(batch, key), np.stack([getattr(s, key) for s in steps]),
+                                                  err_msg=key)
+                # the vectorised reward formula vs dm_control's tolerance(): equal to a unit in the last place
+                np.testing.assert_allclose(batch.reward, [s.reward for s in steps], rtol=1e-15, atol=1e-16)
+    finally:
+        set_step_threads(1)
+
+
+def test_an_invalid_physics_state_raises_as_dm_control_does():
+    from dm_control.rl.control import PhysicsError as DmPhysicsError
+
+    vector, single = VectorWalkerEnv("walk", [0]), WalkerEnv("walk", 0)
+    vector.reset()
+    single.reset()
+    for env in (vector.envs[0], single):
+        env.physics.data.qvel[:] = 1e30  # diverged: MuJoCo warns (bad qacc) and resets the data
+    with pytest.raises(PhysicsError, match="invalid physics state"):
+        vector.step(np.zeros((1, ACT_DIM)))
+    with pytest.raises(DmPhysicsError):
+        single.step(np.zeros(ACT_DIM))
 
 
 def test_physics_replay_gives_each_tasks_reward_of_the_stored_states():

@@ -43,8 +43,10 @@ def test_a_shortened_thesis_profile_passes_the_params_check_and_keeps_the_grid(f
     assert short["train_teachers"]["schedule"]["steps"] == max(10, round(1_000_000 * fraction))
     assert short["train_teachers"]["pbrl"]["hidden_sizes"] == THESIS["train_teachers"]["pbrl"]["hidden_sizes"]
     assert short["distill"]["seeds"] == THESIS["distill"]["seeds"]
-    one = one_level_grid(short)
+    one = one_level_grid(scaled_profile(THESIS, fraction, max_evaluations=2))
     check_params(one)
+    for schedule in (one["train_teachers"]["schedule"], one["distill"]["schedule"]):
+        assert schedule["steps"] // schedule["eval_every"] <= 2
     assert one["study"]["levels"] == [THESIS["study"]["levels"][0]] and one["train_teachers"]["seeds"] == [0]
     assert one["distill"]["pairings"] == [THESIS["study"]["levels"][0]]
     assert stage_hours(one, RATES)["distill"][0] == 3 * len(THESIS["distill"]["seeds"])
