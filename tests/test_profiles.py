@@ -14,13 +14,16 @@ from conftest import ROOT
 PROFILES = sorted((ROOT / "profiles").glob("*.yaml"))
 
 
+VALUES = {"collect.schedule.medium_target_return"}  # a value that may be a mapping (a target per task), not a section
+
+
 def key_paths(mapping: dict, prefix: str = "") -> set[str]:
     """Every key of a nested mapping as a dotted path (``train_teachers.pbrl.critic_tau``)."""
     paths = set()
     for key, value in mapping.items():
         path = f"{prefix}{key}"
         paths.add(path)
-        if isinstance(value, dict):
+        if isinstance(value, dict) and path not in VALUES:
             paths |= key_paths(value, path + ".")
     return paths
 
