@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -70,7 +71,7 @@ def pbrl_rates(profile: Path, device: torch.device, count: int) -> dict[str, flo
     base = pbrl_config(profile)
     rates = {}
     for actor in ("deterministic", "gaussian"):
-        config = from_mapping(type(base), {**base.__dict__, "actor": actor}, "train_teachers.pbrl")
+        config = replace(base, actor=actor)
         agent = PBRL(config, 24, 6, 0, device)
         batch = random_batch(config.batch_size).to(device)
         rates[actor] = per_second(lambda: agent.update(batch), count, device)
@@ -87,8 +88,7 @@ def student_rates(profile: Path, params: dict, device: torch.device, count: int)
                for _ in range(2)]
     rates: dict[str, dict[str, float]] = {}
     for loss in ("mse", "q"):
-        loss_config = from_mapping(type(config), {**config.__dict__, "loss": loss,
-                                                  "student": config.student.__dict__}, "distill")
+        loss_config = replace(config, loss=loss)
         rates[loss] = {}
         for runs in GROUP_SIZES:
             group = Distiller(loss_config, [targets] * runs, 24, 6, list(range(runs)),
