@@ -205,8 +205,7 @@ def distill_students(sources: StudentSources, config: DistillConfig, schedule: T
                                    "states": [[t.source for t in run] for run in targets]})
     group_curve, seconds, resumed_from = train_loop(distiller, distiller.update, evaluate, schedule, shared, None,
                                                     resume, fingerprint, f"distill {name}", progress)
-    split = [split_runs(row, len(seeds)) for row in group_curve]  # per row: one row per run
-    curves = [[rows[r] for rows in split] for r in range(len(seeds))]
+    curves = [[split_runs(row, len(seeds))[r] for row in group_curve] for r in range(len(seeds))]
     final_seeds = [shared["final_eval"] + i for i in range(schedule.final_eval_episodes)]
     records = []
     for r, (seed, run_paths) in enumerate(zip(seeds, paths)):
