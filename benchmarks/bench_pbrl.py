@@ -10,7 +10,10 @@ Prints:
 - the thesis-size update with glibc's default allocator against ``runtime.keep_freed_memory``
   (each in its own process, alternating, 3 processes each);
 - one Adam step, fused kernel (``nn.adam``) against PyTorch's default, for 5 critics of the
-  thesis size.
+  thesis size;
+- a group of R = 1, 2, 4, 8 PBRL teachers trained as one vectorised model (``agents.pbrl_group``, the
+  train_teachers stage's runs of one level and actor type): time per update of the group over one
+  run's (a group of one), and the group of one against the plain single-run ``PBRL`` update.
 The side-by-side with the thesis's reference code is benchmarks/bench_reference.py.
 
 Run: ``python benchmarks/bench_pbrl.py [--threads N] [--quick-only]``.
@@ -22,6 +25,7 @@ import argparse
 import statistics
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -29,6 +33,7 @@ import yaml
 from timing import rate
 
 from mop_core.agents.pbrl import PBRL, PBRLConfig
+from mop_core.agents.pbrl_group import PBRLGroup, stack_batches
 from mop_core.config import from_mapping
 from mop_core.data import Batch
 from mop_core.nn import EnsembleCritic, adam, per_member_forward
@@ -79,6 +84,22 @@ def measure_update(name: str, config: PBRLConfig, updates: int) -> None:
     print(f"{name}: E={config.ensemble_size} {'x'.join(map(str, config.hidden_sizes))} batch {config.batch_size} "
           f"OOD {config.ood_actions} ({gflops:.2f} GFLOP/update): {per_second:.1f} updates/s, "
           f"{per_second * gflops:.1f} GFLOP/s achieved")
+
+
+def group_rates(name: str, config: PBRLConfig, updates: int, runs: tuple[int, ...] = (1, 2, 4, 8)) -> None:
+    """Seconds per update of a group of R teachers (each run its own seed, generator and minibatch)
+    over seconds per update of a group of one: the cost of R runs trained as one model, relative to one."""
+    seconds = {}
+    for r in runs:
+        group = PBRLGroup(config, 24, 6, list(range(r)))
+        batch = stack_batches([random_batch(config.batch_size, seed) for seed in range(r)])
+        seconds[r] = 1.0 / rate(lambda: [group.update(batch) for _ in range(updates)], updates, repeats=5)
+    single = 1.0 / update_rate(config, updates)
+    cells = ", ".join(f"R={r}: {seconds[r] / seconds[1]:.2f}x ({seconds[1] * r / seconds[r]:.2f}x per run)"
+                      for r in runs)
+    print(f"{name}: PBRL teacher group ({config.actor}, E={config.ensemble_size}, "
+          f"{'x'.join(map(str, config.hidden_sizes))}, batch {config.batch_size}) time per update / one run's: "
+          f"{cells}; one run {1e3 * seconds[1]:.2f} ms as a group of one, {1e3 * single:.2f} ms as plain PBRL")
 
 
 def critic_paths(members: int, width: int, rows: int) -> None:
@@ -145,7 +166,11 @@ def main() -> None:
     for members, width, rows in shapes:
         critic_paths(members, width, rows)
     adam_step()
+    quick = pbrl_config(ROOT / "params.yaml")
+    for actor in ("deterministic", "gaussian"):  # the study's two teacher groups per level
+        group_rates(f"quick {actor}", replace(quick, actor=actor), updates=10)
     if not args.quick_only:
+        group_rates("thesis deterministic", thesis, updates=2, runs=(1, 2, 4))
         allocator_comparison(args.threads)
 
 

@@ -4,7 +4,8 @@ into the profile's cost.
 Measures in one process (after a warm-up; on CUDA every timed block ends with a synchronize):
 - TD3 updates/s at ``collect.td3`` (the collect stage's learner; its 1:1 env/update schedule adds env steps);
 - PBRL updates/s per actor type at ``train_teachers.pbrl`` (a teacher, and each task's update of the
-  naive multi-task baseline);
+  naive multi-task baseline), and the group updates/s of R = 1 and R = 8 teachers trained as one
+  vectorised model (the train_teachers stage trains every task and seed of a (level, actor) as one);
 - student updates/s for a group of R = 1 and R = 8 students (the distill stage trains every seed of a
   (loss, pairing) as one group) at ``distill``, MSE and Q losses, 2 tasks: the group's updates/s, so
   R runs of 8 cost R / (8 * rate_8) seconds per step each;
@@ -30,6 +31,7 @@ from bench_distill import profile as distill_profile
 from bench_pbrl import pbrl_config, random_batch
 
 from mop_core.agents.pbrl import PBRL
+from mop_core.agents.pbrl_group import PBRLGroup, stack_batches
 from mop_core.agents.td3 import TD3, TD3Config
 from mop_core.config import from_mapping
 from mop_core.distill.distiller import Distiller
@@ -75,6 +77,19 @@ def pbrl_rates(profile: Path, device: torch.device, count: int) -> dict[str, flo
         agent = PBRL(config, 24, 6, 0, device)
         batch = random_batch(config.batch_size).to(device)
         rates[actor] = per_second(lambda: agent.update(batch), count, device)
+    return rates
+
+
+def pbrl_group_rates(profile: Path, device: torch.device, count: int) -> dict[str, dict[str, float]]:
+    base = pbrl_config(profile)
+    rates: dict[str, dict[str, float]] = {}
+    for actor in ("deterministic", "gaussian"):
+        config = replace(base, actor=actor)
+        rates[actor] = {}
+        for runs in (1, 8):
+            group = PBRLGroup(config, 24, 6, list(range(runs)), device)
+            batch = stack_batches([random_batch(config.batch_size, seed) for seed in range(runs)]).to(device)
+            rates[actor][str(runs)] = per_second(lambda: group.update(batch), count, device)
     return rates
 
 
@@ -128,6 +143,7 @@ def main() -> None:
               "machine": machine_facts(device),
               "td3_updates_per_second": td3_rate(params, device, count),
               "pbrl_updates_per_second": pbrl_rates(profile, device, count),
+              "pbrl_group_updates_per_second": pbrl_group_rates(profile, device, count),
               "student_group_updates_per_second": student_rates(profile, params, device, count),
               "rollout_control_steps_per_second": rollout_rate(profile, device),
               "single_env_control_steps_per_second": rollout_rate(profile, device, envs=1)}

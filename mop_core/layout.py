@@ -63,9 +63,10 @@ def collect_paths(task: str) -> CollectPaths:
 def run_paths(name: str, family: str, batch: str | None = None) -> RunPaths:
     """A training run's final checkpoint (DVC output), metrics and curve (results/), resume file and timing.
 
-    ``batch``: the run is one of a group trained together in one process (students: every seed of a
-    (loss, pairing)); its checkpoint, metrics and curve lie in a folder named after the group (the
-    group's DVC outputs), and the resume file and timing record are the group's."""
+    ``batch``: the run is one of a group trained together in one process (teachers: every task and
+    seed of a (level, actor type); students: every seed of a (loss, pairing)); its checkpoint, metrics
+    and curve lie in a folder named after the group (the group's DVC outputs), and the resume file and
+    timing record are the group's."""
     sub = Path() if batch is None else Path(batch)
     owner = name if batch is None else batch
     return RunPaths(checkpoint=DATA / family / sub / f"{name}.pt",

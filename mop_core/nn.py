@@ -83,6 +83,49 @@ def mlp(in_features: int, hidden_sizes: Sequence[int], out_features: int, layer_
     return nn.Sequential(*layers)
 
 
+def stack_networks(nets: Sequence[nn.Sequential]) -> nn.Sequential:
+    """R plain networks of one :func:`mlp` architecture as one ensemble network with R members: member r
+    computes exactly what ``nets[r]`` computes (``nn.Linear`` weight ``[out, in]`` -> row r of an
+    :class:`EnsembleLinear` ``[R, in, out]``; ``nn.LayerNorm`` -> :class:`EnsembleLayerNorm`). Runs of a
+    group (:class:`mop_core.distill.student.StudentGroup`, :class:`mop_core.agents.pbrl_group.PBRLGroup`)
+    train as one model this way."""
+    if not nets:
+        raise ValueError("nets: a group needs at least one network")
+    kinds = [type(layer) for layer in nets[0]]
+    if any([type(layer) for layer in net] != kinds for net in nets):
+        raise ValueError("nets: every network of a group must have the same layers")
+    linears = [layer for layer in nets[0] if isinstance(layer, nn.Linear)]
+    sizes = [layer.in_features for layer in linears] + [linears[-1].out_features]
+    layer_norm = any(k is nn.LayerNorm for k in kinds)
+    group = mlp(sizes[0], sizes[1:-1], sizes[-1], layer_norm, ensemble_size=len(nets)).to(linears[0].weight.device)
+    if [type(layer) for layer in group] != [{nn.Linear: EnsembleLinear, nn.LayerNorm: EnsembleLayerNorm}.get(k, k)
+                                            for k in kinds]:
+        raise ValueError("nets: expected networks built by mop_core.nn.mlp")
+    with torch.no_grad():
+        for index, layer in enumerate(group):
+            if isinstance(layer, EnsembleLinear):
+                layer.weight.copy_(torch.stack([net[index].weight.t() for net in nets]))
+                layer.bias.copy_(torch.stack([net[index].bias.unsqueeze(0) for net in nets]))
+            elif isinstance(layer, EnsembleLayerNorm):
+                layer.weight.copy_(torch.stack([net[index].weight.unsqueeze(0) for net in nets]))
+                layer.bias.copy_(torch.stack([net[index].bias.unsqueeze(0) for net in nets]))
+    return group
+
+
+@torch.no_grad()
+def copy_member(group: nn.Sequential, member: int, net: nn.Sequential) -> nn.Sequential:
+    """Write member ``member`` of an ensemble network into the plain network ``net`` (the inverse of
+    :func:`stack_networks`); returns ``net``."""
+    for layer, plain in zip(group, net, strict=True):
+        if isinstance(layer, EnsembleLinear):
+            plain.weight.copy_(layer.weight[member].t())
+            plain.bias.copy_(layer.bias[member, 0])
+        elif isinstance(layer, EnsembleLayerNorm):
+            plain.weight.copy_(layer.weight[member, 0])
+            plain.bias.copy_(layer.bias[member, 0])
+    return net
+
+
 class DeterministicActor(nn.Module):
     """a = tanh(f(s)): a deterministic policy with actions in [-1, 1]."""
 
@@ -221,6 +264,68 @@ class _EnsembleReLUMLP(torch.autograd.Function):
         return (grad_x, *(grad_w if need_w else [None] * layers), *(grad_b if need_w else [None] * layers))
 
 
+class _BatchedReLUMLP(torch.autograd.Function):
+    """The batched twin of :class:`_EnsembleReLUMLP`: E ReLU networks as one ``baddbmm`` per layer on
+    ``x [B, in]`` (shared) or ``x [E, B, in]``, with the same hand-written backward (each ReLU in place
+    on its product, each activation gradient masked in place, no weight gradients when the weights
+    are frozen). Autograd through ``nn.Sequential`` allocates a new buffer for every ReLU and every
+    ReLU backward: at the PBRL groups' sizes (20 critics x 768 rows x 128) those element-wise passes
+    cost as much as the matrix products (benchmarks/bench_pbrl.py)."""
+
+    @staticmethod
+    def forward(ctx, x: torch.Tensor, *params: torch.Tensor) -> torch.Tensor:
+        layers = len(params) // 2
+        weights, biases = params[:layers], params[layers:]
+        h = x if x.dim() == 3 else x.unsqueeze(0).expand(weights[0].shape[0], -1, -1)
+        saved = []
+        for k in range(layers):
+            h = torch.baddbmm(biases[k], h, weights[k])
+            if k < layers - 1:
+                h = h.relu_()
+                saved.append(h)
+        ctx.layers = layers
+        ctx.save_for_backward(x, *weights, *saved)
+        return h
+
+    @staticmethod
+    def backward(ctx, grad_out: torch.Tensor):
+        x, *rest = ctx.saved_tensors
+        layers = ctx.layers
+        weights, saved = rest[:layers], rest[layers:]
+        need_x, need_w = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
+        grad_w: list = [None] * layers
+        grad_b: list = [None] * layers
+        grad_x = None
+        g = grad_out
+        for k in range(layers - 1, -1, -1):
+            below = saved[k - 1] if k > 0 else (x if x.dim() == 3 else x.unsqueeze(0).expand(g.shape[0], -1, -1))
+            if need_w:
+                grad_w[k] = torch.bmm(below.transpose(1, 2), g)
+                grad_b[k] = g.sum(dim=1, keepdim=True)
+            if k > 0:
+                g = torch.bmm(g, weights[k].transpose(1, 2))
+                torch.ops.aten.threshold_backward.grad_input(g, below, 0.0, grad_input=g)
+            elif need_x:
+                grad_x = torch.bmm(g, weights[0].transpose(1, 2))
+                if x.dim() == 2:
+                    grad_x = grad_x.sum(dim=0)
+        return (grad_x, *grad_w, *grad_b)
+
+
+def ensemble_forward(net: nn.Sequential, x: torch.Tensor, member_by_member: bool) -> torch.Tensor:
+    """An ensemble network on ``x [B, in]`` (shared by every member) or ``[E, B, in]`` (one batch per
+    member) -> ``[E, B, out]``: member by member (:func:`per_member_forward`), or batched: a plain
+    ReLU network through :class:`_BatchedReLUMLP`, any other through autograd."""
+    if member_by_member:
+        return per_member_forward(net, x)
+    if _plain_relu_mlp(net):
+        linears = list(net)[0::2]
+        return _BatchedReLUMLP.apply(x, *[lin.weight for lin in linears], *[lin.bias for lin in linears])
+    if x.dim() == 2:
+        x = x.unsqueeze(0).expand(net[0].ensemble_size, -1, -1)
+    return net(x)
+
+
 def _rows_with_gradient(grad: torch.Tensor) -> torch.Tensor | None:
     """The rows of ``grad [R, out]`` that hold a non-zero value, when at most half do (on a CPU), else None.
 
@@ -317,11 +422,8 @@ class EnsembleCritic(nn.Module):
 
     def forward(self, obs: torch.Tensor, act: torch.Tensor) -> torch.Tensor:
         x = torch.cat([obs, act], dim=-1)
-        if x.dim() == 2:
-            if self.member_by_member(x.shape[0], x.device):
-                return per_member_forward(self.net, x).squeeze(-1)
-            x = x.unsqueeze(0).expand(self.ensemble_size, -1, -1)
-        return self.net(x).squeeze(-1)
+        per_member = x.dim() == 2 and self.member_by_member(x.shape[0], x.device)
+        return ensemble_forward(self.net, x, per_member).squeeze(-1)
 
     def first(self, obs: torch.Tensor, act: torch.Tensor) -> torch.Tensor:
         """Q_1(s, a) alone, ``[B]`` (TD3's actor objective): one member's work, not E members'."""

@@ -1,7 +1,8 @@
 """The kinds of run a study trains and evaluates, what each is called and where its files are.
 
 - :class:`BehaviourRun`: a TD3 snapshot of the collect stage (medium, expert) per task;
-- :class:`TeacherRun`: a PBRL teacher per (task, level, actor type, seed);
+- :class:`TeacherRun`: a PBRL teacher per (task, level, actor type, seed); every task and seed of a
+  (level, actor type) trains in one train_teachers entry, as one vectorised group (its ``batch``);
 - :class:`MultitaskRun`: the naive multi-task PBRL baseline per (level, seed);
 - :class:`StudentRun`: a distilled student per (loss, pairing, seed), with the teachers it learns
   from (one per study task); every seed of a (loss, pairing) trains in one distill entry, as one
@@ -30,6 +31,12 @@ def behaviour_group(level: str) -> str:
 
 def teacher_group(level: str, actor: str) -> str:
     return f"teacher_{level}_{actor}"
+
+
+def teacher_batch(level: str, actor: str) -> str:
+    """The train_teachers entry (and file folder) of every task and seed of a (level, actor type):
+    ``<level>-<actor>``, trained as one vectorised group."""
+    return f"{level}-{actor}"
 
 
 def multitask_group(level: str) -> str:
@@ -91,8 +98,14 @@ class TeacherRun:
         return teacher_group(self.level, self.actor)
 
     @property
+    def batch(self) -> str:
+        """The train_teachers entry that trains this teacher with every other task and seed of its
+        (level, actor type), as one vectorised group: ``<level>-<actor>``, the folder of its files."""
+        return teacher_batch(self.level, self.actor)
+
+    @property
     def paths(self) -> RunPaths:
-        return run_paths(self.name, self.family)
+        return run_paths(self.name, self.family, self.batch)
 
     @property
     def dataset(self) -> Path:

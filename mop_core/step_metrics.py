@@ -13,7 +13,7 @@ as a per-update check would.
 from __future__ import annotations
 
 import math
-from typing import Mapping
+from typing import Any, Mapping
 
 import numpy as np
 import torch
@@ -85,3 +85,21 @@ class StepMetrics:
         last = {key: v[-1] for key, v in self.values.items() if v}
         self.values = {}
         return last
+
+
+def run_key(key: str, run: int) -> str:
+    """The metric or curve column ``key`` of run ``run`` of a group: ``key@run``."""
+    return f"{key}@{run}"
+
+
+def split_runs(row: Mapping[str, Any], runs: int) -> list[dict]:
+    """A group's row (``key@r`` columns per run, plain columns shared) -> one row per run, the columns in
+    the order they first appear (a run alone writes the same header); a run's own value of a column
+    wins over the group's (e.g. ``return_mean``: the run's, not the group's mean)."""
+    out: list[dict] = [{} for _ in range(runs)]
+    for key, value in row.items():
+        name, _, run = key.rpartition("@") if "@" in key else (key, "", "")
+        for target in ([out[int(run)]] if run else out):
+            if run or name not in target:
+                target[name] = value
+    return out

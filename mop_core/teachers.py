@@ -10,14 +10,15 @@ weights as an uninterrupted one.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import torch
 
-from mop_core.agents.pbrl import PBRL, PBRLConfig, make_actor
+from mop_core.agents.pbrl import PBRLConfig, make_actor
+from mop_core.agents.pbrl_group import PBRLGroup, stack_batches
 from mop_core.agents.pbrl_multitask import MultiTaskPBRL
 from mop_core.artifacts import load_checkpoint, state_sha256
 from mop_core.config import InputFileError, from_mapping, require, to_dict
@@ -27,8 +28,10 @@ from mop_core.nn import EnsembleCritic, numpy_policy
 from mop_core.rollout import episode_returns, trajectory_returns
 from mop_core.runtime import derive_seeds
 from mop_core.schedule import TrainSchedule
+from mop_core.step_metrics import run_key, split_runs
 from mop_core.study import StudyConfig, teacher_grid
 from mop_core.tasks import check_task_list
+from mop_core.timings import per_second, write_timing
 from mop_core.training import (
     RunPaths,
     finish_run,
@@ -96,46 +99,112 @@ def run_seeds(study_seed: int, name: Sequence[str], seed: int) -> dict[str, int]
     return derive_seeds([study_seed, *name, seed], ("agent", "sampler", "eval", "final_eval"))
 
 
+@dataclass(frozen=True)
+class TeacherJob:
+    """One run of a teacher group: the task it learns, its data (D_{i->i}), its seed and its files."""
+
+    task: str
+    source: DataSource
+    seed: int
+    paths: RunPaths
+
+
+class _GroupLearner:
+    """A :class:`PBRLGroup` with each run's dataset and index generator: ``update()`` draws run r's
+    minibatch from run r's data with run r's generator (as :func:`train_teacher` alone would) and
+    takes one step of every run; the generators' states are part of the resume state."""
+
+    def __init__(self, agent: PBRLGroup, data: Sequence[TransitionTensors], samplers: Sequence[torch.Generator],
+                 batch_size: int):
+        self.agent, self.data, self.samplers, self.batch_size = agent, list(data), list(samplers), batch_size
+
+    def update(self) -> dict:
+        return self.agent.update(stack_batches([d.sample(self.batch_size, g) for d, g in zip(self.data,
+                                                                                             self.samplers)]))
+
+    def state_dict(self) -> dict:
+        return {"agent": self.agent.state_dict(), "samplers": [g.get_state() for g in self.samplers]}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.agent.load_state_dict(state["agent"])
+        for generator, saved in zip(self.samplers, state["samplers"], strict=True):
+            generator.set_state(saved)
+
+
 def train_teacher(task: str, source: DataSource, config: TeacherConfig, seed: int, study_seed: int,
                   paths: RunPaths, device: torch.device | str = "cpu", progress: bool = False) -> dict:
-    """Train one PBRL teacher for ``task`` on ``source`` (its own dataset: D_{i->i}); write its files.
+    """Train one PBRL teacher for ``task`` on ``source`` (its own dataset: D_{i->i}), a group of one;
+    write its files. Returns the metrics record (also written to ``paths.metrics``)."""
+    return train_teacher_group([TeacherJob(task, source, seed, paths)], config, study_seed, paths.resume,
+                               paths.timing, device, progress, f"{task}-{seed}")[0]
 
-    Returns the metrics record (also written to ``paths.metrics``).
+
+def train_teacher_group(jobs: Sequence[TeacherJob], config: TeacherConfig, study_seed: int, resume: Path,
+                        timing: Path | None, device: torch.device | str = "cpu", progress: bool = False,
+                        name: str = "teachers") -> list[dict]:
+    """Train the teachers of ``jobs`` (one configuration: tasks and seeds of one level and actor type)
+    as one vectorised PBRL group (:class:`~mop_core.agents.pbrl_group.PBRLGroup`); write each run's
+    checkpoint, curve and metrics (``jobs[r].paths``), the group's resume file and its timing record.
+
+    Each run draws what it would draw alone: its initialisation, its generator and its minibatch
+    indices derive from (study seed, its task, data and seed), and it is evaluated on its own task
+    with its own episode seeds; a group equals its runs trained alone to float rounding (tested).
+    Returns the metrics records, one per job.
     """
-    check_task_list([task], "task")
+    require(len(jobs) > 0, "jobs", "at least one teacher run", len(jobs))
+    for job in jobs:
+        check_task_list([job.task], "task")
     device = torch.device(device)
-    data, summary = load_source(source, config.episode_length, device)  # in memory on the learner's device
-    check_batch_fits(config, summary)
-    level = summary["level"]
-    seeds = run_seeds(study_seed, [task, summary["source_task"], level], seed)
-    agent = PBRL(config.pbrl, OBS_DIM, ACT_DIM, seeds["agent"], device)
-    sampler = torch.Generator(device).manual_seed(seeds["sampler"])  # indices drawn where the data lies
-    batch_size = config.pbrl.batch_size
-    policy = numpy_policy(agent.actor, device)
+    loaded: dict[tuple[Path, Path, str], tuple[TransitionTensors, dict]] = {}
+    for job in jobs:  # the seeds of one task share one copy of its data
+        key = (job.source.dataset, job.source.relabel, job.source.reward_task)
+        if key not in loaded:
+            loaded[key] = load_source(job.source, config.episode_length, device)  # in memory on the learner's device
+            check_batch_fits(config, loaded[key][1])
+    data = [loaded[(j.source.dataset, j.source.relabel, j.source.reward_task)] for j in jobs]
+    seeds = [run_seeds(study_seed, [job.task, summary["source_task"], summary["level"]], job.seed)
+             for job, (_, summary) in zip(jobs, data)]
+    agent = PBRLGroup(config.pbrl, OBS_DIM, ACT_DIM, [s["agent"] for s in seeds], device)
+    samplers = [torch.Generator(device).manual_seed(s["sampler"]) for s in seeds]  # indices drawn where the data lies
+    learner = _GroupLearner(agent, [tensors for tensors, _ in data], samplers, config.pbrl.batch_size)
     sched = config.schedule
 
-    def evaluate(eval_seeds: list[int]) -> dict[str, float]:
-        return returns_summary(episode_returns(policy, task, eval_seeds, config.episode_length, sched.rollout_envs))
+    def episodes(run: int, key: str, count: int) -> np.ndarray:
+        return episode_returns(numpy_policy(agent.member_actor(run), device), jobs[run].task,
+                               [seeds[run][key] + i for i in range(count)], config.episode_length, sched.rollout_envs)
 
-    fingerprint = run_fingerprint({"task": task, "config": to_dict(config), "seed": seed, "study_seed": study_seed,
-                                "data": summary["content_sha256"], "reward_task": source.reward_task})
-    curve, seconds, resumed_from = train_loop(
-        agent, lambda: agent.update(data.sample(batch_size, sampler)), evaluate, sched, seeds, sampler, paths.resume,
-        fingerprint, f"teacher {task}-{level}-{seed}", progress)
-    final = episode_returns(policy, task, [seeds["final_eval"] + i for i in range(sched.final_eval_episodes)],
-                            config.episode_length, sched.rollout_envs)
-    metrics = {"task": task, "level": level, "seed": seed, "return_mean": float(final.mean()),
-               "return_std": float(final.std()), "eval_episodes": len(final),
-               "dataset_return_mean": summary["return_mean"],
-               "return_ratio": float(final.mean() / summary["return_mean"]), "gradient_steps": sched.steps}
-    actor_state = {k: v.cpu() for k, v in agent.actor.state_dict().items()}
-    return finish_run(paths, {
-        "kind": TEACHER_KIND, "task": task, "level": level, "seed": seed, "study_seed": study_seed,
-        "pbrl_config": to_dict(config.pbrl), "episode_length": config.episode_length,
-        "obs_dim": OBS_DIM, "act_dim": ACT_DIM, "actor": actor_state,
-        "critic": {k: v.cpu() for k, v in agent.critic.critic.state_dict().items()},
-        "actor_sha256": state_sha256(actor_state), "dataset": summary, "metrics": metrics}, curve, metrics,
-        seconds, sched.steps, resumed_from, device)
+    def evaluate(_: list[int]) -> dict[str, float]:  # each run on its own task with its own episode seeds
+        rows = [returns_summary(episodes(r, "eval", sched.eval_episodes)) for r in range(len(jobs))]
+        group_row = {run_key(k, r): v for r, row in enumerate(rows) for k, v in row.items()}
+        return group_row | {"return_mean": float(np.mean([row["return_mean"] for row in rows]))}
+
+    fingerprint = run_fingerprint({"runs": [{"task": j.task, "seed": j.seed, "data": s["content_sha256"],
+                                             "reward_task": j.source.reward_task} for j, (_, s) in zip(jobs, data)],
+                                   "config": to_dict(config), "study_seed": study_seed})
+    group_curve, seconds, resumed_from = train_loop(learner, learner.update, evaluate, sched, seeds[0], None, resume,
+                                                    fingerprint, f"teachers {name}", progress)
+    curves = list(zip(*(split_runs(row, len(jobs)) for row in group_curve))) or [[] for _ in jobs]
+    records = []
+    for r, (job, (_, summary)) in enumerate(zip(jobs, data)):
+        level = summary["level"]
+        final = episodes(r, "final_eval", sched.final_eval_episodes)
+        metrics = {"task": job.task, "level": level, "seed": job.seed, "return_mean": float(final.mean()),
+                   "return_std": float(final.std()), "eval_episodes": len(final),
+                   "dataset_return_mean": summary["return_mean"],
+                   "return_ratio": float(final.mean() / summary["return_mean"]), "gradient_steps": sched.steps}
+        actor_state = {k: v.cpu() for k, v in agent.member_actor(r).state_dict().items()}
+        checkpoint = {
+            "kind": TEACHER_KIND, "task": job.task, "level": level, "seed": job.seed, "study_seed": study_seed,
+            "pbrl_config": to_dict(config.pbrl), "episode_length": config.episode_length,
+            "obs_dim": OBS_DIM, "act_dim": ACT_DIM, "actor": actor_state,
+            "critic": {k: v.cpu() for k, v in agent.member_critic_state(r).items()},
+            "actor_sha256": state_sha256(actor_state), "dataset": summary, "metrics": metrics}
+        records.append(finish_run(replace(job.paths, timing=None, resume=resume), checkpoint, list(curves[r]), metrics,
+                                  seconds, sched.steps, resumed_from, device))
+    if timing is not None:
+        write_timing(timing, seconds, device, steps=sched.steps, runs=len(jobs),
+                     steps_per_second=per_second(sched.steps, seconds), resumed_from_step=resumed_from)
+    return records
 
 
 def train_multitask(tasks: Sequence[str], sources: Sequence[DataSource], config: TeacherConfig, seed: int,

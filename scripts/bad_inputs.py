@@ -40,8 +40,8 @@ STAGE = {
     "params": ["stages/check_params.py"],
     "collect": ["stages/collect.py"],
     "relabel": ["stages/relabel.py"],
-    "teacher": ["stages/train_teachers.py", "--task", "stand", "--level", "medium", "--actor", "deterministic",
-                "--seed", "0"],
+    "teacher": ["stages/train_teachers.py", "--level", "medium", "--actor", "deterministic", "--tasks", "stand",
+                "--seeds", "0"],
     "multitask": ["stages/train_multitask.py", "--level", "medium", "--seed", "0"],
     "student_inputs": ["stages/student_inputs.py"],
     "distill": ["stages/distill.py", "--loss", "mse", "--pairing", "medium", "--seed", "0"],
@@ -216,8 +216,8 @@ def cases() -> list[Case]:  # noqa: C901 (a flat list of cases)
     p.append(Case("params.yaml is a list", "relabel", write_params_text("- study\n"), "params.yaml"))
     # command lines
     teacher = STAGE["teacher"][1:]
-    for args, culprit in [(("--task", "fly"), "--task"), (("--level", "expert"), "--level"),
-                          (("--actor", "stochastic"), "--actor"), (("--seed", "-1"), "--seed")]:
+    for args, culprit in [(("--tasks", "fly"), "--tasks"), (("--level", "expert"), "--level"),
+                          (("--actor", "stochastic"), "--actor"), (("--seeds", "-1"), "--seed")]:
         changed = list(teacher)
         changed[changed.index(args[0]) + 1] = args[1]
         p.append(Case(f"train_teachers {' '.join(args)}", "teacher", lambda ws: None, culprit, tuple(changed)))
@@ -229,7 +229,8 @@ def cases() -> list[Case]:  # noqa: C901 (a flat list of cases)
         p.append(Case(f"distill {' '.join(args)}", "distill", lambda ws: None, culprit, tuple(changed)))
     # files
     ds, rl = "data/datasets/stand-medium.hdf5", "data/relabelled/stand-medium.hdf5"
-    teacher_pt, student_pt = "data/teachers/stand-medium-deterministic-0.pt", "data/students/mse-medium/mse-medium-0.pt"
+    teacher_pt = "data/teachers/medium-deterministic/stand-medium-deterministic-0.pt"
+    student_pt = "data/students/mse-medium/mse-medium-0.pt"
     for how, fault in [("empty", empty), ("truncated", truncate), ("garbled", garble)]:
         p.append(Case(f"dataset {how}", "relabel", fault(ds), ds))
         p.append(Case(f"relabel file {how}", "teacher", fault(rl), rl))
@@ -260,9 +261,9 @@ def cases() -> list[Case]:  # noqa: C901 (a flat list of cases)
                   copy_over("data/datasets/stand-expert.hdf5", ds), ds))
     p.append(Case("relabel file of another dataset", "teacher", copy_over("data/relabelled/walk-medium.hdf5", rl), rl))
     p.append(Case("walk's teacher in stand's slot", "distill",
-                  copy_over("data/teachers/walk-medium-deterministic-0.pt", teacher_pt), teacher_pt))
+                  copy_over(teacher_pt.replace("stand-", "walk-"), teacher_pt), teacher_pt))
     p.append(Case("gaussian teacher in the deterministic slot", "distill",
-                  copy_over("data/teachers/stand-medium-gaussian-0.pt", teacher_pt), teacher_pt))
+                  copy_over("data/teachers/medium-gaussian/stand-medium-gaussian-0.pt", teacher_pt), teacher_pt))
     p.append(Case("teachers trained with another learning rate", "distill",
                   set_param("train_teachers.pbrl.learning_rate", 0.002), teacher_pt))
     p.append(Case("teachers trained for fewer steps", "distill", set_param("train_teachers.schedule.steps", 80),

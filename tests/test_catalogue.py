@@ -62,10 +62,11 @@ def test_run_names_groups_and_files(catalogue):
     assert behaviour.group == "behaviour_expert" and behaviour.checkpoint == Path("data/behaviour/stand/expert.pt")
     teacher = catalogue.teachers[1]
     assert teacher.group == "teacher_medium_gaussian"
-    assert teacher.paths.checkpoint == Path("data/teachers/stand-medium-gaussian-0.pt")
-    assert teacher.paths.metrics == Path("results/teachers/metrics/stand-medium-gaussian-0.json")
-    assert teacher.paths.curve == Path("results/teachers/curves/stand-medium-gaussian-0.tsv")
-    assert teacher.paths.resume == Path("data/resume/teachers-stand-medium-gaussian-0.pt")
+    assert teacher.paths.checkpoint == Path("data/teachers/medium-gaussian/stand-medium-gaussian-0.pt")
+    assert teacher.paths.timing == Path("results/timings/teachers/medium-gaussian.json")  # the group's
+    assert teacher.paths.metrics == Path("results/teachers/metrics/medium-gaussian/stand-medium-gaussian-0.json")
+    assert teacher.paths.curve == Path("results/teachers/curves/medium-gaussian/stand-medium-gaussian-0.tsv")
+    assert teacher.paths.resume == Path("data/resume/teachers-medium-gaussian.pt")
     assert teacher.dataset == Path("data/datasets/stand-medium.hdf5")
     assert teacher.relabel == Path("data/relabelled/stand-medium.hdf5")
     multitask = catalogue.multitask[0]
@@ -91,7 +92,7 @@ def test_kl_students_learn_from_gaussian_teachers_mse_and_q_from_deterministic_o
 
 def test_eval_jobs_cover_every_policy_and_the_cross_task_teachers(catalogue):
     def teacher(task, actor):
-        return Path(f"data/teachers/{task}-medium-{actor}-0.pt")
+        return Path(f"data/teachers/medium-{actor}/{task}-medium-{actor}-0.pt")
 
     expected = []
     for task, other in (("stand", "walk"), ("walk", "stand")):
@@ -215,9 +216,9 @@ def test_student_inputs_record_the_teachers_and_datasets_by_content(catalogue, t
     record = student_inputs(batch)
     assert record == {
         "students": [run.name for run in batch], "tasks": ["stand", "walk"],
-        "teachers": [{"path": "data/teachers/stand-medium-deterministic-0.pt",
+        "teachers": [{"path": "data/teachers/medium-deterministic/stand-medium-deterministic-0.pt",
                       "sha256": hashlib.sha256(b"teacher 0").hexdigest()},
-                     {"path": "data/teachers/walk-medium-deterministic-0.pt",
+                     {"path": "data/teachers/medium-deterministic/walk-medium-deterministic-0.pt",
                       "sha256": hashlib.sha256(b"teacher 1").hexdigest()}],
         "datasets": [{"path": "data/datasets/stand-medium.hdf5", "content_sha256": "content-stand"},
                      {"path": "data/datasets/walk-medium.hdf5", "content_sha256": "content-walk"}]}
@@ -227,7 +228,8 @@ def test_student_inputs_record_the_teachers_and_datasets_by_content(catalogue, t
     with pytest.raises(InputFileError) as err:
         check_student_inputs(batch, record, where)
     message = str(err.value)  # names the file that changed and the record
-    assert message.startswith("data/teachers/walk-medium-deterministic-0.pt: ") and str(where) in message
+    assert message.startswith("data/teachers/medium-deterministic/walk-medium-deterministic-0.pt: ")
+    assert str(where) in message
     student.teachers[1].paths.checkpoint.write_bytes(b"teacher 1")
     check_student_inputs(batch, record, where)
     with h5py.File(student.teachers[0].dataset, "a") as h5:

@@ -227,7 +227,8 @@ def test_a_full_disk_names_the_file_and_keeps_the_previous_one(tmp_path):
 
 
 def test_leftover_temporary_files_are_invisible_to_dvc():
-    result = subprocess.run(["dvc", "check-ignore", "data/teachers/.stand-medium-deterministic-0.pt.tmp-4242",
+    teacher_tmp = "data/teachers/medium-deterministic/.stand-medium-deterministic-0.pt.tmp-4242"
+    result = subprocess.run(["dvc", "check-ignore", teacher_tmp,
                              "data/datasets/.walk-expert.hdf5.tmp-17"], cwd=ROOT, capture_output=True, text=True,
                             env=os.environ | {"PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"})
     assert result.returncode == 0, result.stdout + result.stderr

@@ -10,10 +10,14 @@ from mop_core.nn import (
     EnsembleCritic,
     EnsembleLayerNorm,
     EnsembleLinear,
+    _BatchedReLUMLP,
     _EnsembleReLUMLP,
     adam,
+    copy_member,
+    ensemble_forward,
     mlp,
     per_member_forward,
+    stack_networks,
 )
 
 
@@ -135,6 +139,53 @@ def test_hand_written_member_pass_gives_input_gradients_through_frozen_weights()
     net(x.unsqueeze(0).expand(3, -1, -1)).sum().backward()
     torch.testing.assert_close(x_fast, x.grad)
     assert all(p.grad is None for p in net.parameters())
+
+
+@pytest.mark.parametrize("shared", [True, False])
+def test_batched_hand_written_pass_passes_gradcheck(shared):
+    net = _relu_ensemble(depth=2)
+    linears = [m for m in net if isinstance(m, EnsembleLinear)]
+    x = torch.randn(*(() if shared else (3,)), 7, 5, dtype=torch.float64, requires_grad=True)
+    params = [lin.weight for lin in linears] + [lin.bias for lin in linears]
+    assert torch.autograd.gradcheck(lambda x_, *p: _BatchedReLUMLP.apply(x_, *p), (x, *params))
+
+
+@pytest.mark.parametrize("frozen", [False, True])
+def test_batched_hand_written_pass_equals_autograd_through_plain_layers(frozen):
+    net = _relu_ensemble(width=32, members=4, dtype=torch.float32).requires_grad_(not frozen)
+    x = torch.randn(4, 300, 5, requires_grad=True)
+    fast = ensemble_forward(net, x, member_by_member=False)
+    assert fast.grad_fn.name() == "_BatchedReLUMLPBackward"
+    weight = torch.randn_like(fast)
+    (fast * weight).sum().backward()
+    fast_grads = [] if frozen else [p.grad.clone() for p in net.parameters()]
+    fast_x = x.grad.clone()
+    net.zero_grad()
+    x.grad = None
+    plain = net(x)  # autograd through EnsembleLinear and nn.ReLU
+    torch.testing.assert_close(fast, plain)
+    (plain * weight).sum().backward()
+    torch.testing.assert_close(fast_x, x.grad)
+    for got, expected in zip(fast_grads, [p.grad for p in net.parameters()]):
+        torch.testing.assert_close(got, expected)
+    if frozen:
+        assert all(p.grad is None for p in net.parameters())
+
+
+@pytest.mark.parametrize("layer_norm", [False, True])
+def test_stacked_networks_compute_what_each_network_computes(layer_norm):
+    nets = []
+    for seed in range(3):
+        torch.manual_seed(seed)
+        nets.append(mlp(5, [8, 8], 2, layer_norm))
+    group = stack_networks(nets)
+    x = torch.randn(3, 10, 5)
+    out = ensemble_forward(group, x, member_by_member=False)
+    for r, net in enumerate(nets):
+        torch.testing.assert_close(out[r], net(x[r]))
+        back = copy_member(group, r, mlp(5, [8, 8], 2, layer_norm))
+        for got, expected in zip(back.state_dict().values(), net.state_dict().values(), strict=True):
+            torch.testing.assert_close(got, expected)
 
 
 def test_layer_norm_ensembles_take_the_generic_member_loop():

@@ -52,8 +52,8 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
         assert (repo / "data" / "relabelled" / f"{task}-medium.hdf5").is_file()  # the tiny study's level
         for actor in ("deterministic", "gaussian"):
             name = f"{task}-medium-{actor}-0"
-            assert (repo / "data" / "teachers" / f"{name}.pt").is_file()
-            assert (repo / "results" / "teachers" / "curves" / f"{name}.tsv").is_file()
+            assert (repo / "data" / "teachers" / f"medium-{actor}" / f"{name}.pt").is_file()
+            assert (repo / "results" / "teachers" / "curves" / f"medium-{actor}" / f"{name}.tsv").is_file()
     assert (repo / "data" / "multitask" / "medium-0.pt").is_file()
     for loss in ("mse", "q", "kl"):
         assert (repo / "data" / "students" / f"{loss}-medium" / f"{loss}-medium-0.pt").is_file()
@@ -81,7 +81,7 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
     for figure in ("returns.png", "student_curves.png"):
         assert (repo / "results" / "eval" / figure).read_bytes()[:4] == b"\x89PNG"
     stages = _run(["dvc", "stage", "list"], repo).stdout
-    assert "train_teachers@stand-medium-gaussian-0" in stages and "train_multitask@medium-0" in stages
+    assert "train_teachers@medium-gaussian" in stages and "train_multitask@medium-0" in stages
     assert "distill@kl-medium" in stages and "eval" in stages
     shared = json.loads((repo / "results" / "shared_computation" / "metrics.json").read_text())
     for group in ("mse_medium", "q_medium", "kl_medium"):
@@ -133,7 +133,7 @@ def test_the_readme_shows_the_tested_commands():
 def test_metrics_show_holds_the_headline_numbers_and_the_timings_apart(repo):
     shown = json.loads(_run(["dvc", "metrics", "show", "--json"], repo).stdout)[""]["data"]
     assert all(path == "results/metrics.json" or path.startswith("results/timings/") for path in shown), shown
-    assert len([path for path in shown if path.startswith("results/timings/")]) == 12  # one per stage run
+    assert len([path for path in shown if path.startswith("results/timings/")]) == 10  # one per stage entry
     headline = shown["results/metrics.json"]["data"]
     assert headline == json.loads((repo / "results" / "metrics.json").read_text())
     evaluation = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
@@ -151,7 +151,7 @@ def test_metrics_show_holds_the_headline_numbers_and_the_timings_apart(repo):
     rows = [line for line in table.splitlines() if line.strip()]
     assert "normalised_return.student_mse_medium.stand" in table and len(rows) == 3  # header, rule, one row
     timings = _run(_command(TIMINGS_SHOW, "--md"), repo).stdout
-    assert timings.count("results/timings/") == 12 and "normalised_return" not in timings
+    assert timings.count("results/timings/") == 10 and "normalised_return" not in timings
 
 
 def test_every_plot_renders_and_only_the_current_runs_are_drawn(repo):
@@ -167,7 +167,7 @@ def test_every_plot_renders_and_only_the_current_runs_are_drawn(repo):
     assert not shown.get("errors"), shown.get("errors")
     kinds = {path: {plot["type"] for plot in plots} for path, plots in shown["data"].items()}
     assert "results/students/curves/mse-expert/mse-expert-0.tsv" not in kinds
-    for curve in ("collect/curves/stand.tsv", "teachers/curves/walk-medium-gaussian-0.tsv",
+    for curve in ("collect/curves/stand.tsv", "teachers/curves/medium-gaussian/walk-medium-gaussian-0.tsv",
                   "multitask/curves/medium-0.tsv", "students/curves/kl-medium/kl-medium-0.tsv", "eval/returns.tsv",
                   "students/tau/mse-medium/mse-medium-0/per_state_tau_a_layer1.tsv",
                   "students/tau/q-medium/q-medium-0/per_state_tau_b_layer2.tsv"):
@@ -187,9 +187,10 @@ def test_no_output_is_tracked_by_git(repo):
 def test_a_forced_teacher_rerun_leaves_every_later_stage_up_to_date(repo):
     """The checkpoint, curve and metrics hold no time or version: a rerun writes the same bytes, and
     only the run's timing record changes (no stage reads it)."""
-    stage, name = "train_teachers@stand-medium-deterministic-0", "stand-medium-deterministic-0"
-    files = [repo / "data" / "teachers" / f"{name}.pt", repo / "results" / "teachers" / "curves" / f"{name}.tsv",
-             repo / "results" / "teachers" / "metrics" / f"{name}.json"]
+    stage, batch = "train_teachers@medium-deterministic", "medium-deterministic"
+    files = [repo / "data" / "teachers" / batch / f"{task}-{batch}-0.pt" for task in ("stand", "walk")]
+    files += [repo / "results" / "teachers" / kind / batch / f"{task}-{batch}-0.{ext}" for task in ("stand", "walk")
+              for kind, ext in (("curves", "tsv"), ("metrics", "json"))]
     before = [f.read_bytes() for f in files]
     out = _run(["dvc", "repro", "-f", "-s", stage], repo).stdout
     assert _stages_run(out) == {stage}
@@ -246,7 +247,7 @@ def test_each_parameter_section_invalidates_only_its_stages(repo):
     assert _invalidated_by(repo, "collect", "td3.learning_rate", 0.002) == {"collect"}
     assert _invalidated_by(repo, "relabel", "physics_check_transitions", 20) == {"relabel"}
     teachers = _invalidated_by(repo, "train_teachers", "pbrl.learning_rate", 0.002)
-    assert {"train_teachers@walk-medium-deterministic-0", "train_multitask@medium-0"} <= teachers
+    assert {"train_teachers@medium-deterministic", "train_multitask@medium-0"} <= teachers
     assert not {"collect", "relabel", "eval"} & teachers and not any(s.startswith("distill") for s in teachers)
     assert _invalidated_by(repo, "eval", "episodes", 2) == {"eval", "report"}  # the report names the budget
     assert _invalidated_by(repo, "shared_computation", "episodes", 2) == {"shared_computation"}
@@ -256,7 +257,8 @@ def test_a_changed_teacher_makes_only_its_own_students_stale(repo):
     """Each distill entry depends on its student_inputs record, not on every teacher (issue 13)."""
     import torch
 
-    teacher = repo / "data" / "teachers" / "stand-medium-gaussian-0.pt"  # only the KL student learns from it
+    # only the KL student learns from it
+    teacher = repo / "data" / "teachers" / "medium-gaussian" / "stand-medium-gaussian-0.pt"
     original = teacher.read_bytes()
     try:
         teacher.unlink()  # DVC may have linked it to its cache: write a new file, never into the link
@@ -356,7 +358,7 @@ def test_bad_parameter_fails_before_compute_and_names_the_key(repo, tmp_path):
     params["study"]["levels"] = ["medium"]
     params["train_teachers"]["pbrl"]["ensemble_size"] = 1
     (work / "params.yaml").write_text(yaml.safe_dump(params))
-    teacher = [sys.executable, "stages/train_teachers.py", "--task", "stand", "--level", "medium", "--seed", "0"]
+    teacher = [sys.executable, "stages/train_teachers.py", "--level", "medium", "--tasks", "stand", "--seeds", "0"]
     result = _run(teacher, work, check=False)
     assert result.returncode == 2
     assert "train_teachers.pbrl.ensemble_size: expected an integer >= 2" in result.stderr
@@ -384,7 +386,7 @@ def test_bad_parameter_fails_before_compute_and_names_the_key(repo, tmp_path):
     result = _run([*student[:5], "expert+medium+medium", *student[6:]], work, check=False)
     assert "--pairing: expected one level or one per study task (2) joined by '+'" in result.stderr
     result = _run(student, work, check=False)
-    assert "missing input data/teachers/stand-medium-deterministic-0.pt" in result.stderr
+    assert "missing input data/teachers/medium-deterministic/stand-medium-deterministic-0.pt" in result.stderr
     assert not (work / "data" / "students").exists()
 
 

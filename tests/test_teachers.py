@@ -10,15 +10,18 @@ import pytest
 import torch
 
 from mop_core.agents.pbrl import PBRLConfig, PessimisticCritic
+from mop_core.agents.pbrl_group import PBRLGroup
 from mop_core.relabel import RelabelConfig, relabel_dataset
 from mop_core.schedule import TrainSchedule
 from mop_core.teachers import (
     DataSource,
     TeacherConfig,
+    TeacherJob,
     load_source,
     load_teacher,
     train_multitask,
     train_teacher,
+    train_teacher_group,
 )
 from mop_core.training import RunPaths
 
@@ -94,7 +97,7 @@ def test_interrupted_run_resumes_to_the_same_weights(sources, tmp_path, monkeypa
     ref_state = torch.load(tmp_path / "a" / "teacher.pt", weights_only=False)
 
     paths = _paths(tmp_path / "b")
-    original = PessimisticCritic.step
+    original = PBRLGroup.update
     calls = {"n": 0}
 
     def interrupt(self, *args, **kwargs):
@@ -103,10 +106,10 @@ def test_interrupted_run_resumes_to_the_same_weights(sources, tmp_path, monkeypa
             raise KeyboardInterrupt
         return original(self, *args, **kwargs)
 
-    monkeypatch.setattr(PessimisticCritic, "step", interrupt)
+    monkeypatch.setattr(PBRLGroup, "update", interrupt)
     with pytest.raises(KeyboardInterrupt):
         train_teacher("stand", sources["stand"], _config(), 0, 0, paths)
-    monkeypatch.setattr(PessimisticCritic, "step", original)
+    monkeypatch.setattr(PBRLGroup, "update", original)
     assert paths.resume.is_file() and not paths.checkpoint.exists() and not paths.metrics.exists()
 
     resumed = train_teacher("stand", sources["stand"], _config(), 0, 0, paths)
@@ -116,6 +119,29 @@ def test_interrupted_run_resumes_to_the_same_weights(sources, tmp_path, monkeypa
         for name, tensor in ref_state[key].items():
             torch.testing.assert_close(state[key][name], tensor, rtol=0, atol=0)
     assert resumed["return_mean"] == reference["return_mean"]
+
+
+@pytest.mark.parametrize("actor", ["deterministic", "gaussian"])
+def test_a_teacher_group_trains_each_run_as_it_would_train_alone(sources, tmp_path, actor):
+    """Two tasks (their own data) and two seeds in one group: each run's weights, curve and metrics are
+    the run's alone, to float rounding; the group writes one timing record for its 4 runs."""
+    config = _config(actor)
+    jobs = [TeacherJob(task, sources[task], seed, _paths(tmp_path / f"{task}-{seed}"))
+            for task in ("stand", "walk") for seed in (0, 3)]
+    timing = tmp_path / "group-timing.json"
+    records = train_teacher_group(jobs, config, 0, tmp_path / "group-resume.pt", timing)
+    assert json.loads(timing.read_text())["runs"] == 4 and not (tmp_path / "group-resume.pt").exists()
+    for job, record in zip(jobs, records):
+        alone = _paths(tmp_path / "alone" / f"{job.task}-{job.seed}")
+        expected = train_teacher(job.task, job.source, config, job.seed, 0, alone)
+        found, reference = (torch.load(p.checkpoint, weights_only=False) for p in (job.paths, alone))
+        for key in ("actor", "critic"):
+            for name, tensor in reference[key].items():
+                torch.testing.assert_close(found[key][name], tensor, atol=1e-4, rtol=1e-3)
+        assert record["task"] == job.task and record["seed"] == job.seed
+        assert record["return_mean"] == pytest.approx(expected["return_mean"], rel=0.05, abs=1.0)
+        group_curve, alone_curve = (p.curve.read_text().splitlines() for p in (job.paths, alone))
+        assert group_curve[0] == alone_curve[0] and len(group_curve) == len(alone_curve)  # same columns
 
 
 def test_resume_file_of_another_config_or_a_broken_one_restarts_cleanly(sources, tmp_path, capsys):

@@ -26,6 +26,7 @@ from mop_core.distill.losses import LOSSES, Q_REDUCTIONS, LossInputs, mse_per_st
 from mop_core.distill.states import STATE_SOURCES, TaskStates
 from mop_core.distill.student import Student, StudentConfig, StudentGroup
 from mop_core.nn import EnsembleCritic, adam
+from mop_core.step_metrics import run_key
 from mop_core.study import DISTILL_GRID_KEYS, section
 
 LR_SCHEDULES = ("constant", "cosine")
@@ -77,22 +78,6 @@ def distill_config(params: Mapping[str, Any], loss: str) -> DistillConfig:
     if "loss" in raw:
         raise ConfigError("distill.loss: set the losses in distill.losses instead")
     return from_mapping(DistillConfig, raw | {"loss": loss}, "distill")
-
-
-def run_key(key: str, run: int) -> str:
-    """The metric or curve column ``key`` of run ``run`` of a group: ``key@run``."""
-    return f"{key}@{run}"
-
-
-def split_runs(row: Mapping[str, Any], runs: int) -> list[dict]:
-    """A group's row (``key@r`` columns per run, plain columns shared) -> one row per run."""
-    shared = {k: v for k, v in row.items() if "@" not in k}
-    out = [dict(shared) for _ in range(runs)]
-    for key, value in row.items():
-        if "@" in key:
-            name, run = key.rsplit("@", 1)
-            out[int(run)][name] = value
-    return out
 
 
 class Distiller:

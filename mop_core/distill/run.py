@@ -21,7 +21,7 @@ from mop_core.artifacts import load_checkpoint, state_sha256, write_curve
 from mop_core.catalogue import check_student_inputs
 from mop_core.config import from_mapping, require, to_dict
 from mop_core.data import read_dataset_attrs, read_json
-from mop_core.distill.distiller import DistillConfig, Distiller, run_key, split_runs
+from mop_core.distill.distiller import DistillConfig, Distiller
 from mop_core.distill.losses import LOSSES
 from mop_core.distill.states import TaskStates, offline_states, online_states, task_states
 from mop_core.distill.student import Student
@@ -31,6 +31,7 @@ from mop_core.rollout import episode_returns, returns_and_states
 from mop_core.runs import StudentRun
 from mop_core.runtime import derive_seeds
 from mop_core.schedule import TrainSchedule
+from mop_core.step_metrics import run_key, split_runs
 from mop_core.structure import per_state_tau_by_layer
 from mop_core.tasks import check_task_list
 from mop_core.teachers import Teacher, TeacherConfig, check_teacher_checkpoint, load_teacher

@@ -14,9 +14,10 @@ from mop_core.nn import (
     DeterministicActor,
     GaussianActor,
     bounded_log_std,
+    copy_member,
+    ensemble_forward,
     member_loop_pays,
-    mlp,
-    per_member_forward,
+    stack_networks,
     with_task_id,
 )
 
@@ -91,20 +92,12 @@ class StudentGroup(nn.Module):
         self.config, self.num_tasks, self.gaussian, self.runs = first.config, first.num_tasks, first.gaussian, len(
             students)
         self.act_dim = first.actor.act_dim if first.gaussian else first.actor.net[-1].out_features
-        linears = [[m for m in s.actor.net if isinstance(m, nn.Linear)] for s in students]
-        sizes = [layer.in_features for layer in linears[0]] + [linears[0][-1].out_features]
-        self.net = mlp(sizes[0], sizes[1:-1], sizes[-1], ensemble_size=len(students))
-        with torch.no_grad():
-            for k, layer in enumerate(self.net[0::2]):
-                layer.weight.copy_(torch.stack([run[k].weight.t() for run in linears]))
-                layer.bias.copy_(torch.stack([run[k].bias.unsqueeze(0) for run in linears]))
+        self.net = stack_networks([s.actor.net for s in students])
 
     def _raw(self, obs: torch.Tensor, task: torch.Tensor) -> torch.Tensor:
         """``obs [R, B, o]`` and task ids ``[B]`` (the same layout for every run) -> ``[R, B, out]``."""
         x = with_task_id(obs, task.expand(obs.shape[:-1]), self.num_tasks)
-        if member_loop_pays(x.shape[1], max(self.config.hidden_sizes), x.device):
-            return per_member_forward(self.net, x)
-        return self.net(x)
+        return ensemble_forward(self.net, x, member_loop_pays(x.shape[1], max(self.config.hidden_sizes), x.device))
 
     def forward(self, obs: torch.Tensor, task: torch.Tensor) -> torch.Tensor:
         """Each run's action ``[R, B, k]`` (a Gaussian student's mean)."""
@@ -122,11 +115,7 @@ class StudentGroup(nn.Module):
 
     def member(self, run: int) -> Student:
         """Run ``run``'s student as a plain :class:`Student` (a copy, on the group's device)."""
-        linear_layers = self.net[0::2]
-        student = Student(self.config, linear_layers[0].in_features - self.num_tasks,
-                          self.act_dim, self.num_tasks, self.gaussian).to(linear_layers[0].weight.device)
-        with torch.no_grad():
-            for plain, layer in zip([m for m in student.actor.net if isinstance(m, nn.Linear)], linear_layers):
-                plain.weight.copy_(layer.weight[run].t())
-                plain.bias.copy_(layer.bias[run, 0])
+        student = Student(self.config, self.net[0].in_features - self.num_tasks, self.act_dim, self.num_tasks,
+                          self.gaussian).to(self.net[0].weight.device)
+        copy_member(self.net, run, student.actor.net)
         return student
