@@ -86,20 +86,26 @@ def measure_update(name: str, config: PBRLConfig, updates: int) -> None:
           f"{per_second * gflops:.1f} GFLOP/s achieved")
 
 
-def group_rates(name: str, config: PBRLConfig, updates: int, runs: tuple[int, ...] = (1, 2, 4, 8)) -> None:
+def group_rates(name: str, config: PBRLConfig, updates: int, runs: tuple[int, ...] = (1, 2, 4, 8),
+                rounds: int = 3) -> None:
     """Seconds per update of a group of R teachers (each run its own seed, generator and minibatch)
-    over seconds per update of a group of one: the cost of R runs trained as one model, relative to one."""
-    seconds = {}
-    for r in runs:
-        group = PBRLGroup(config, 24, 6, list(range(r)))
-        batch = stack_batches([random_batch(config.batch_size, seed) for seed in range(r)])
-        seconds[r] = 1.0 / rate(lambda: [group.update(batch) for _ in range(updates)], updates, repeats=5)
+    over seconds per update of a group of one: the cost of R runs trained as one model, relative to one.
+    The group sizes are measured in turn, ``rounds`` times, and each keeps its fastest round's median:
+    a burst of other load on the machine then skews no ratio."""
+    groups = {r: (PBRLGroup(config, 24, 6, list(range(r))),
+                  stack_batches([random_batch(config.batch_size, seed) for seed in range(r)])) for r in runs}
+    seconds = {r: float("inf") for r in runs}
+    for _ in range(rounds):
+        for r, (group, batch) in groups.items():
+            per_update = 1.0 / rate(lambda: [group.update(batch) for _ in range(updates)], updates, repeats=3)
+            seconds[r] = min(seconds[r], per_update)
     single = 1.0 / update_rate(config, updates)
     cells = ", ".join(f"R={r}: {seconds[r] / seconds[1]:.2f}x ({seconds[1] * r / seconds[r]:.2f}x per run)"
                       for r in runs)
     print(f"{name}: PBRL teacher group ({config.actor}, E={config.ensemble_size}, "
           f"{'x'.join(map(str, config.hidden_sizes))}, batch {config.batch_size}) time per update / one run's: "
-          f"{cells}; one run {1e3 * seconds[1]:.2f} ms as a group of one, {1e3 * single:.2f} ms as plain PBRL")
+          f"{cells}; one run {1e3 * seconds[1]:.2f} ms as a group of one, {1e3 * single:.2f} ms as plain PBRL "
+          f"(fastest of {rounds} interleaved rounds)")
 
 
 def critic_paths(members: int, width: int, rows: int) -> None:
