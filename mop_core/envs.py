@@ -91,6 +91,13 @@ class WalkerEnv:
         self._t = 0
         return flatten_observation(self._env.reset().observation)
 
+    def reseed(self, seed: int) -> None:
+        """Make the next ``reset`` start the episode a fresh ``WalkerEnv(task, seed)`` starts: the
+        task's generator is re-seeded (``RandomState.seed(seed)`` is ``RandomState(seed)``'s state)
+        and a reset rebuilds every other piece of state (``mj_resetData``, dm_control's step count)."""
+        self._env.task.random.seed(int(seed))
+        self._t = 0
+
     def random_state(self) -> tuple:
         """The state of the task's random generator (what the next ``reset`` draws the start state from)."""
         return self._env.task.random.get_state()
@@ -110,6 +117,32 @@ class WalkerEnv:
             physics=self._env.physics.get_state().copy(),
             features=read_reward_features(self._env.physics),
         )
+
+
+_FREE_ENVS: dict[tuple[WalkerTask, int], list[WalkerEnv]] = {}
+MAX_FREE_ENVS = 64  # per (task, episode length): what one process keeps for reuse (~1 MB each)
+
+
+def borrow_env(task: str | WalkerTask, seed: int, episode_length: int = EPISODE_LENGTH) -> WalkerEnv:
+    """A walker env of ``task`` that starts as ``WalkerEnv(task, seed, episode_length)`` does: a freed
+    one re-seeded (:meth:`WalkerEnv.reseed`) when there is one, else a new one. Building a walker
+    parses its XML model (~0.12 s, more than 100 control steps of a rollout), which evaluating
+    every few thousand updates did for each episode; :func:`release_envs` gives envs back."""
+    task = get_task(task) if isinstance(task, str) else task
+    free = _FREE_ENVS.get((task, episode_length))
+    if free:
+        env = free.pop()
+        env.reseed(seed)
+        return env
+    return WalkerEnv(task, seed, episode_length)
+
+
+def release_envs(envs: Sequence[WalkerEnv]) -> None:
+    """Keep ``envs`` (no longer used by their borrower) for :func:`borrow_env`."""
+    for env in envs:
+        free = _FREE_ENVS.setdefault((env.task, env.episode_length), [])
+        if len(free) < MAX_FREE_ENVS and all(other is not env for other in free):
+            free.append(env)
 
 
 @dataclass
@@ -181,7 +214,7 @@ class VectorWalkerEnv:
     def __init__(self, task: str | WalkerTask, seeds: Sequence[int], episode_length: int = EPISODE_LENGTH):
         if len(seeds) == 0:
             raise ValueError("seeds: expected at least one seed")
-        self.envs = [WalkerEnv(task, seed, episode_length) for seed in seeds]
+        self.envs = [borrow_env(task, seed, episode_length) for seed in seeds]
         self.task, self.episode_length = self.envs[0].task, episode_length
         self._members = [_Member(env.physics.model.ptr, env.physics.data.ptr) for env in self.envs]
         model = self._members[0].model
@@ -195,6 +228,17 @@ class VectorWalkerEnv:
     @property
     def num_envs(self) -> int:
         return len(self.envs)
+
+    def close(self) -> None:
+        """Give the walkers back for reuse (:func:`release_envs`); the env is not used after."""
+        release_envs(self.envs)
+        self.envs, self._members = [], []
+
+    def __enter__(self) -> "VectorWalkerEnv":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     def reset(self) -> np.ndarray:
         self._t = 0

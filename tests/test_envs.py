@@ -14,6 +14,7 @@ from mop_core.envs import (
     PhysicsError,
     VectorWalkerEnv,
     WalkerEnv,
+    borrow_env,
     flatten_observation,
     physics_replay_rewards,
     set_step_threads,
@@ -148,3 +149,24 @@ def test_physics_replay_gives_each_tasks_reward_of_the_stored_states():
     np.testing.assert_allclose(replayed["walk"], [s.reward for s in steps], atol=1e-9)
     features = np.stack([s.features for s in steps])
     np.testing.assert_allclose(replayed["stand"], get_task("stand").reward(features), atol=1e-9)
+
+
+def test_a_reused_walker_starts_the_episode_a_fresh_one_of_its_seed_starts():
+    """VectorWalkerEnv borrows freed walkers (building one parses its XML: ~0.12 s) and re-seeds them:
+    every episode is the one a fresh env of that seed gives, bit for bit, whatever ran before."""
+    actions = _actions(40, 2)
+
+    def episode(seeds: list[int]) -> np.ndarray:
+        with VectorWalkerEnv("walk", seeds, 40) as env:
+            frames = [env.reset()]
+            frames += [env.step(a).observation for a in actions]
+        return np.stack(frames)
+
+    fresh = episode([3, 4])
+    other = episode([5, 6])  # reuses the two walkers
+    assert not np.array_equal(fresh, other)
+    np.testing.assert_array_equal(episode([3, 4]), fresh)
+    borrowed = borrow_env("walk", 4, 40)
+    alone = WalkerEnv("walk", 4, 40)
+    assert borrowed is not alone
+    np.testing.assert_array_equal(borrowed.reset(), alone.reset())

@@ -5,9 +5,17 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 
 from mop_core.envs import WalkerEnv
-from mop_core.rollout import collect_episodes, episode_returns, returns_and_states, trajectory_returns
+from mop_core.rollout import (
+    collect_episodes,
+    episode_returns,
+    policies_returns_and_states,
+    policy_threads,
+    returns_and_states,
+    trajectory_returns,
+)
 
 SEEDS = [11, 12, 13]
 LENGTH = 15
@@ -85,3 +93,37 @@ def test_trajectory_returns_sums_the_complete_trajectories_only():
     np.testing.assert_array_equal(trajectory_returns(rewards, ends, 3), [3.0, 12.0])
     np.testing.assert_array_equal(trajectory_returns(rewards, ends, 4), [])
     assert trajectory_returns(rewards, np.zeros(10, dtype=bool), 3).shape == (0,)
+
+
+def test_policies_stepped_together_get_what_each_gets_alone_bit_for_bit():
+    """A group's runs evaluated in one MuJoCo batch: each policy's returns and visited states are
+    those of its own rollout (same seeds, same per-policy batches of at most num_envs walkers)."""
+    policies = [policy, lambda obs: -policy(obs), lambda obs: np.tanh(obs[:, 6:12])]
+    together = policies_returns_and_states(policies, "walk", SEEDS, LENGTH, num_envs=2)
+    for p, (returns, states) in zip(policies, together):
+        alone_returns, alone_states = returns_and_states(p, "walk", SEEDS, LENGTH, num_envs=2)
+        np.testing.assert_array_equal(returns, alone_returns)
+        np.testing.assert_array_equal(states, alone_states)
+    no_states = policies_returns_and_states(policies, "walk", SEEDS, LENGTH, 2, keep_states=False)
+    assert all(states is None for _, states in no_states)
+    np.testing.assert_array_equal(no_states[1][0], together[1][0])
+
+
+def test_policies_run_on_one_torch_thread_during_a_rollout_and_the_count_is_restored():
+    before = torch.get_num_threads()
+    seen = []
+
+    def counting(obs: np.ndarray) -> np.ndarray:
+        seen.append(torch.get_num_threads())
+        return policy(obs)
+
+    torch.set_num_threads(2)
+    try:
+        episode_returns(counting, "walk", SEEDS[:1], 3)
+        assert set(seen) == {1} and torch.get_num_threads() == 2
+        with pytest.raises(RuntimeError):
+            with policy_threads():
+                raise RuntimeError("a failing rollout")
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)

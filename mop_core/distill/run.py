@@ -27,7 +27,7 @@ from mop_core.distill.states import TaskStates, offline_states, online_states, t
 from mop_core.distill.student import Student
 from mop_core.envs import ACT_DIM, OBS_DIM
 from mop_core.nn import numpy_policy, with_task_id
-from mop_core.rollout import episode_returns, returns_and_states
+from mop_core.rollout import policies_returns_and_states
 from mop_core.runs import StudentRun
 from mop_core.runtime import derive_seeds
 from mop_core.schedule import TrainSchedule
@@ -90,6 +90,17 @@ def build_states(sources: StudentSources, teachers: Sequence[Teacher], config: D
     return result
 
 
+def group_states(sources: StudentSources, teachers: Sequence[Teacher], config: DistillConfig, episode_length: int,
+                 seeds: Sequence[int], rollout_envs: int, device: torch.device) -> list[list[TaskStates]]:
+    """Each run's distillation states (:func:`build_states` with the run's seed); the whole offline
+    dataset is the same for every seed: built once and shared."""
+    first = build_states(sources, teachers, config, episode_length, seeds[0], rollout_envs, device)
+    if config.state_source == "offline" and config.num_states == 0:
+        return [first] * len(seeds)
+    return [first] + [build_states(sources, teachers, config, episode_length, seed, rollout_envs, device)
+                      for seed in seeds[1:]]
+
+
 def offline_probes(sources: StudentSources, per_task: int, seed: int) -> list[torch.Tensor]:
     """``per_task`` states of each task's offline dataset (drawn without replacement with ``seed``), on
     which the per-state tau curve is measured during training (``probe_source: offline``). The seed
@@ -129,6 +140,37 @@ def student_policy(student: Student, task_index: int, device: torch.device, samp
                         device)
 
 
+def group_rollouts(students: Sequence[Student], tasks: Sequence[str], task_index: int, seeds: list[int],
+                   episode_length: int, rollout_envs: int, device: torch.device, keep_states: bool
+                   ) -> list[tuple[np.ndarray, np.ndarray | None]]:
+    """Every run's student on task ``tasks[task_index]`` (returns and, with ``keep_states``, visited
+    states per run), the runs' walkers stepped together: what each run's own rollout gives, bit
+    for bit (:func:`mop_core.rollout.policies_returns_and_states`), in one MuJoCo batch."""
+    return policies_returns_and_states([student_policy(s, task_index, device) for s in students], tasks[task_index],
+                                       seeds, episode_length, rollout_envs, keep_states)
+
+
+def tau_record(config: DistillConfig, fixed_probes: Sequence[torch.Tensor], at_init: dict[str, float],
+               last_row: dict) -> dict:
+    """The metrics record's per-state tau: how it was probed, at initialisation and at the end."""
+    return {"probe_source": config.probe_source,
+            "probe_states_per_task": min(len(p) for p in fixed_probes) if fixed_probes else config.probe_states,
+            "probe_sha256": (hashlib.sha256(torch.cat(list(fixed_probes)).numpy().tobytes()).hexdigest()
+                             if fixed_probes else None),
+            "at_init": at_init, "final": {key: float(last_row[key]) for key in at_init}}
+
+
+def final_returns_record(tasks: Sequence[str], teachers: Sequence[Teacher], finals: Sequence[np.ndarray]) -> dict:
+    """Per task: the final evaluation's returns next to the teacher's (the metrics record)."""
+    record = {}
+    for task, teacher, final in zip(tasks, teachers, finals):
+        teacher_return = float(teacher.metrics.get("return_mean", float("nan")))
+        record[task] = {"return_mean": float(final.mean()), "return_std": float(final.std()),
+                        "eval_episodes": len(final), "teacher_return_mean": teacher_return,
+                        "student_to_teacher": float(final.mean() / teacher_return)}
+    return record
+
+
 def distill_student(sources: StudentSources, config: DistillConfig, schedule: TrainSchedule, episode_length: int,
                     seed: int, study_seed: int, paths: RunPaths, device: torch.device | str = "cpu",
                     progress: bool = False, name: str = "student") -> dict:
@@ -161,12 +203,8 @@ def distill_students(sources: StudentSources, config: DistillConfig, schedule: T
     run_seeds = [derive_seeds([study_seed, "distill", *sources.tasks, *levels, seed], ("agent", "states"))
                  for seed in seeds]
     shared = derive_seeds([study_seed, "distill", *sources.tasks, *levels], ("eval", "final_eval", "probe"))
-    targets = [build_states(sources, teachers, config, episode_length, run_seeds[0]["states"],
-                            schedule.rollout_envs, device)]
-    for more in run_seeds[1:]:  # the whole offline dataset is the same for every seed: shared, not rebuilt
-        targets.append(targets[0] if config.state_source == "offline" and config.num_states == 0 else
-                       build_states(sources, teachers, config, episode_length, more["states"],
-                                    schedule.rollout_envs, device))
+    targets = group_states(sources, teachers, config, episode_length, [s["states"] for s in run_seeds],
+                           schedule.rollout_envs, device)
     critics = [t.critic for t in teachers] if LOSSES[config.loss].needs_critics else None
     distiller = Distiller(config, targets, OBS_DIM, ACT_DIM, [s["agent"] for s in run_seeds], critics, device,
                           schedule.steps)
@@ -178,27 +216,34 @@ def distill_students(sources: StudentSources, config: DistillConfig, schedule: T
         probes = fixed_probes or visited_probes(visited, config.probe_states, shared["probe"])
         return tau_columns(per_state_tau_by_layer(student, [p.to(device) for p in probes]))
 
-    def evaluate_run(student: Student, eval_seeds: list[int]) -> dict[str, float]:
-        row, visited = {}, []
+    def rollouts(students: Sequence[Student], task_index: int, seeds: list[int], keep_states: bool
+                 ) -> list[tuple[np.ndarray, np.ndarray | None]]:
+        return group_rollouts(students, sources.tasks, task_index, seeds, episode_length, schedule.rollout_envs,
+                              device, keep_states)
+
+    def evaluate_runs(students: Sequence[Student], eval_seeds: list[int]) -> list[dict[str, float]]:
+        rows: list[dict[str, float]] = [{} for _ in students]
+        visited: list[list[np.ndarray]] = [[] for _ in students]
         for i, task in enumerate(sources.tasks):
-            returns, states = returns_and_states(student_policy(student, i, device), task, eval_seeds,
-                                                 episode_length, schedule.rollout_envs)
-            row |= {f"{key}_{task}": value for key, value in returns_summary(returns).items()}
-            visited.append(states)
-        row["return_mean"] = float(np.mean([row[f"return_mean_{task}"] for task in sources.tasks]))
-        return row | (probe_tau(student, visited) if track_tau else {})
+            for r, (returns, states) in enumerate(rollouts(students, i, eval_seeds, keep_states=True)):
+                rows[r] |= {f"{key}_{task}": value for key, value in returns_summary(returns).items()}
+                visited[r].append(states)
+        for row in rows:
+            row["return_mean"] = float(np.mean([row[f"return_mean_{task}"] for task in sources.tasks]))
+        return [row | probe_tau(s, v) for row, s, v in zip(rows, students, visited)] if track_tau else rows
 
     def evaluate(eval_seeds: list[int]) -> dict[str, float]:
-        rows = [evaluate_run(distiller.student(r), eval_seeds) for r in range(len(seeds))]
+        rows = evaluate_runs([distiller.student(r) for r in range(len(seeds))], eval_seeds)
         group_row = {run_key(k, r): v for r, row in enumerate(rows) for k, v in row.items()}
         return group_row | {"return_mean": float(np.mean([row["return_mean"] for row in rows]))}
 
     tau_at_init: list[dict[str, float]] = [{} for _ in seeds]
     if track_tau:  # the untrained students, measured the way the curve is (visited: their own first episodes)
         first = [shared["eval"] + i for i in range(schedule.eval_episodes)]
-        tau_at_init = [probe_tau(distiller.student(r), []) if fixed_probes else
-                       {k: v for k, v in evaluate_run(distiller.student(r), first).items()
-                        if k.startswith("per_state_tau_")} for r in range(len(seeds))]
+        untrained = [distiller.student(r) for r in range(len(seeds))]
+        tau_at_init = ([probe_tau(student, []) for student in untrained] if fixed_probes else
+                       [{k: v for k, v in row.items() if k.startswith("per_state_tau_")}
+                        for row in evaluate_runs(untrained, first)])
 
     fingerprint = run_fingerprint({"tasks": sources.tasks, "config": to_dict(config), "schedule": to_dict(schedule),
                                    "seeds": list(seeds), "study_seed": study_seed,
@@ -208,27 +253,17 @@ def distill_students(sources: StudentSources, config: DistillConfig, schedule: T
                                                     resume, fingerprint, f"distill {name}", progress)
     curves = [[split_runs(row, len(seeds))[r] for row in group_curve] for r in range(len(seeds))]
     final_seeds = [shared["final_eval"] + i for i in range(schedule.final_eval_episodes)]
+    students = [distiller.student(r) for r in range(len(seeds))]
+    finals = [[returns for returns, _ in rollouts(students, i, final_seeds, keep_states=False)]
+              for i in range(len(sources.tasks))]  # [task][run]
     records = []
     for r, (seed, run_paths) in enumerate(zip(seeds, paths)):
-        student, curve = distiller.student(r), curves[r]
+        student, curve = students[r], curves[r]
         metrics: dict = {"tasks": list(sources.tasks), "loss": config.loss, "levels": levels, "seed": seed,
                          "gradient_steps": schedule.steps, "trained_with_seeds": list(seeds)}
         if track_tau:
-            metrics["per_state_tau"] = {
-                "probe_source": config.probe_source,
-                "probe_states_per_task": (min(len(p) for p in fixed_probes) if fixed_probes
-                                          else config.probe_states),
-                "probe_sha256": (hashlib.sha256(torch.cat(fixed_probes).numpy().tobytes()).hexdigest()
-                                 if fixed_probes else None),
-                "at_init": tau_at_init[r],
-                "final": {key: float(curve[-1][key]) for key in tau_at_init[r]}}
-        for i, (task, teacher) in enumerate(zip(sources.tasks, teachers)):
-            final = episode_returns(student_policy(student, i, device), task, final_seeds, episode_length,
-                                    schedule.rollout_envs)
-            teacher_return = float(teacher.metrics.get("return_mean", float("nan")))
-            metrics[task] = {"return_mean": float(final.mean()), "return_std": float(final.std()),
-                             "eval_episodes": len(final), "teacher_return_mean": teacher_return,
-                             "student_to_teacher": float(final.mean() / teacher_return)}
+            metrics["per_state_tau"] = tau_record(config, fixed_probes, tau_at_init[r], curve[-1])
+        metrics |= final_returns_record(sources.tasks, teachers, [finals[i][r] for i in range(len(sources.tasks))])
         student_state = {k: v.cpu() for k, v in student.state_dict().items()}
         checkpoint = {
             "kind": STUDENT_KIND, "tasks": list(sources.tasks), "seed": seed, "study_seed": study_seed,
