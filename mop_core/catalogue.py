@@ -26,9 +26,18 @@ from mop_core.runs import (
     StudentRun,
     TeacherRun,
     cross_group,
+    ranking_variant,
+    width_variant,
 )
 from mop_core.runtime import derive_seeds
-from mop_core.study import distill_grid, multitask_grid, pairing_levels, study_config, teacher_grid
+from mop_core.study import (
+    distill_grid,
+    multitask_grid,
+    pairing_levels,
+    structure_grid,
+    study_config,
+    teacher_grid,
+)
 
 LOSS_ACTORS = {name: loss.teacher_actor for name, loss in LOSSES.items()}  # what distill_grid checks
 
@@ -125,23 +134,44 @@ class Catalogue:
                 out.setdefault(run.group, {})[teacher.task] = Reference(teacher.group, run.teacher_seed)
         return out
 
+    def mop_students(self) -> list[StudentRun]:
+        """The plain MOP students (no common-structure variant)."""
+        return [run for run in self.students if not run.variant]
+
+    def variant_students(self) -> list[StudentRun]:
+        """The common-structure variants' students (thesis 6.3)."""
+        return [run for run in self.students if run.variant]
+
     def student_comparisons(self) -> list[tuple[str, str]]:
-        """(X, Y) student groups compared head to head: every pair of losses on the same pairing."""
+        """(X, Y) student groups compared head to head: every pair of losses on the same pairing, and
+        each common-structure variant against the plain MSE students of its pairing."""
         by_pairing: dict[str, list[str]] = {}
-        for run in self.students:
+        for run in self.mop_students():
             groups = by_pairing.setdefault(run.pairing, [])
             if run.group not in groups:
                 groups.append(run.group)
-        return [pair for groups in by_pairing.values() for pair in itertools.combinations(groups, 2)]
+        pairs = [pair for groups in by_pairing.values() for pair in itertools.combinations(groups, 2)]
+        for run in self.variant_students():
+            plain = StudentRun("mse", run.pairing, run.seed, run.teachers).group
+            if (run.group, plain) not in pairs and plain in by_pairing.get(run.pairing, []):
+                pairs.append((run.group, plain))
+        return pairs
 
 
 def make_student(loss: str, pairing: str, seed: int, tasks: tuple[str, ...], levels: tuple[str, ...],
-                 teacher_seed: int) -> StudentRun:
-    """The student of (loss, pairing, seed): per task, the teacher of the pairing's level, the loss's
-    actor type and ``teacher_seed``."""
+                 teacher_seed: int, variant: str = "") -> StudentRun:
+    """The student of (loss, pairing, seed[, variant]): per task, the teacher of the pairing's level,
+    the loss's actor type and ``teacher_seed``."""
     actor = LOSSES[loss].teacher_actor
     return StudentRun(loss, pairing, seed, tuple(TeacherRun(task, level, actor, teacher_seed)
-                                                 for task, level in zip(tasks, levels)))
+                                                 for task, level in zip(tasks, levels)), variant)
+
+
+def structure_variants(params: Mapping[str, Any]) -> tuple[str, tuple[str, ...]]:
+    """The common_structure section's pairing and student variants (widths, then ranking losses)."""
+    grid = structure_grid(params, study_config(params))
+    return grid.pairing, (tuple(width_variant(w) for w in grid.widths)
+                          + tuple(ranking_variant(loss) for loss in grid.ranking_losses))
 
 
 def build_catalogue(params: Mapping[str, Any]) -> Catalogue:
@@ -154,6 +184,10 @@ def build_catalogue(params: Mapping[str, Any]) -> Catalogue:
     students = tuple(make_student(loss, pairing, seed, study.tasks,
                                   pairing_levels(pairing, study, "distill.pairings"), grid.teacher_seed)
                      for loss in grid.losses for pairing in grid.pairings for seed in grid.seeds)
+    structure_pairing, variants = structure_variants(params)
+    students += tuple(make_student("mse", structure_pairing, seed, study.tasks,
+                                   pairing_levels(structure_pairing, study), grid.teacher_seed, variant)
+                      for variant in variants for seed in grid.seeds)
     return Catalogue(
         tasks=study.tasks, levels=study.levels, study_seed=study.seed,
         behaviour=tuple(BehaviourRun(task, level) for task in study.tasks for level in BEHAVIOUR_LEVELS),

@@ -14,8 +14,10 @@ Assumptions, printed with the table: the runs of a stage execute one after anoth
 (dvc repro runs one stage at a time; the collect stage's task processes and a distill entry's seeds
 are the exceptions it models); a student group of R seeds costs the time per update interpolated
 between the measured R = 1 and R = 8; the KL loss costs what MSE does (the same network, no critic);
-collect steps one walker per TD3 update at the single-environment rate. It is an estimate from rates
-measured in isolation, not a measurement of the stages.
+collect steps one walker per TD3 update at the single-environment rate; the common-structure students
+(distill_width, distill_ranking) cost what plain MSE students do (no rate is measured for other widths
+or for the ranking regulariser: a lower bound for width 512 and for the regulariser). It is an
+estimate from rates measured in isolation, not a measurement of the stages.
 """
 
 from __future__ import annotations
@@ -112,6 +114,13 @@ def stage_hours(params: Mapping[str, Any], rates: Rates) -> dict[str, tuple[int,
         seconds += len(distill["pairings"]) * per_entry
     students = len(distill["losses"]) * len(distill["pairings"]) * seeds
     out["distill"] = (students, seconds / 3600)
+    structure = params.get("common_structure", {})
+    per_entry = (d_sched["steps"] * rates.student_seconds_per_update("mse", seeds)
+                 + seeds * _evaluation_steps(d_sched, length, len(tasks)) / rates.rollout)
+    for stage, key in (("distill_width", "widths"), ("distill_ranking", "ranking_losses")):
+        entries = len(structure.get(key, []))
+        out[stage] = (entries * seeds, entries * per_entry / 3600)
+        students += entries * seeds
 
     policies = (2 * len(tasks)  # behaviour medium and expert
                 + len(tasks) * len(levels) * len(teachers["actors"]) * len(teachers["seeds"])
@@ -159,6 +168,9 @@ def scaled_profile(params: Mapping[str, Any], fraction: float, max_evaluations: 
     transitions = min(transitions, collect["warmup_steps"] + collect["medium_step"])  # medium_replay
     for section in (out["train_teachers"]["pbrl"], out["distill"]):
         section["batch_size"] = min(section["batch_size"], transitions)
+    ranking = out["distill"].get("ranking")
+    if ranking:  # the regulariser compares states of the step's batch
+        ranking["states"] = min(ranking["states"], out["distill"]["batch_size"])
     td3 = out["collect"]["td3"]
     td3["batch_size"] = min(td3["batch_size"], collect["warmup_steps"] + collect["total_steps"])
     return out
@@ -174,6 +186,8 @@ def one_level_grid(params: Mapping[str, Any]) -> dict:
     out["train_teachers"]["seeds"] = out["train_teachers"]["seeds"][:1]
     out["train_multitask"].update(levels=[level], seeds=out["train_multitask"]["seeds"][:1])
     out["distill"].update(pairings=[level], teacher_seed=out["train_teachers"]["seeds"][0])
+    if "common_structure" in out:
+        out["common_structure"]["pairing"] = level
     return out
 
 

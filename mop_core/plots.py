@@ -147,3 +147,28 @@ def band_curves(path: str | os.PathLike, panels: Mapping[str, Mapping[str, Mappi
         _label(ax, "gradient step", ylabel, panel)
     fig.suptitle(title)
     _save(fig, path)
+
+
+def interval_panels(path: str | os.PathLike, panels: Mapping[str, Mapping[str, list[tuple]]], xlabel: str,
+                    ylabels: Mapping[str, str], title: str, log_x: bool = False) -> None:
+    """One panel per entry of ``panels``; in each, one line per series of ``(x, mean, low, high)``
+    points drawn with its interval as error bars (``low``/``high`` None: no bar). Categorical x
+    values (strings) are placed in order. Thesis Figures 6.4 and 6.5."""
+    fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 3.6), squeeze=False)
+    for ax, (name, series) in zip(axes[0], panels.items()):
+        categories: list = []
+        for points in series.values():
+            categories += [p[0] for p in points if isinstance(p[0], str) and p[0] not in categories]
+        for label, points in series.items():
+            xs = [categories.index(p[0]) if isinstance(p[0], str) else p[0] for p in points]
+            means = [p[1] for p in points]
+            low = [p[1] - p[2] if p[2] is not None else 0.0 for p in points]
+            high = [p[3] - p[1] if p[3] is not None else 0.0 for p in points]
+            ax.errorbar(xs, means, yerr=[low, high], marker="o", capsize=3, label=label)
+        if categories:
+            ax.set_xticks(range(len(categories)), categories, fontsize=8)
+        if log_x and not categories:
+            ax.set_xscale("log", base=2)
+        _label(ax, xlabel, ylabels.get(name, ""), name)
+    fig.suptitle(title)
+    _save(fig, path)

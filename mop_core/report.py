@@ -29,6 +29,7 @@ from mop_core.runs import (
     multitask_group,
     structure_group,
     student_group,
+    student_recipe,
     teacher_group,
 )
 from mop_core.statistics import MIN_SEEDS_FOR_SEED_CI, confidence_interval
@@ -56,7 +57,8 @@ class StudyResults:
     datasets: dict[str, dict] = field(default_factory=dict)  # "<task>-<level>" -> dataset summary
     teachers: list[Run] = field(default_factory=list)  # key: task, level, actor
     multitask: list[Run] = field(default_factory=list)  # key: level
-    students: list[Run] = field(default_factory=list)  # key: loss, pairing
+    students: list[Run] = field(default_factory=list)  # plain MOP students; key: loss, pairing
+    variants: list[Run] = field(default_factory=list)  # common-structure students; key: loss, variant, pairing
     pairing_levels: dict[str, list[str]] = field(default_factory=dict)  # pairing -> level per task
     evaluation: dict | None = None  # eval metrics (CIs per task and group, cross_task)
     shared: dict | None = None  # shared_computation metrics
@@ -420,7 +422,10 @@ def shared_section(results: StudyResults) -> str:
         return "\n".join(out + [not_run("the shared_computation stage", "Run `dvc repro shared_computation`."), ""])
     shared = results.shared
     rows = []
-    study_order = list(dict.fromkeys(structure_group(r.key["loss"], r.key["pairing"]) for r in results.students))
+    study_order = list(dict.fromkeys(
+        [structure_group(r.key["loss"], r.key["pairing"]) for r in results.students]
+        + [structure_group(student_recipe(r.key["loss"], r.key["variant"]), r.key["pairing"])
+           for r in results.variants]))
     ordered = sorted(shared["groups"], key=lambda g: study_order.index(g) if g in study_order else len(study_order))
     for group in ordered:  # the study's loss order (mse, q, kl), not the JSON file's sorted keys
         summary = shared["groups"][group]
@@ -504,13 +509,14 @@ def cross_task_section(results: StudyResults) -> str:
     return "\n".join(out)
 
 
-def render_report(results: StudyResults, figure_dir: Path, link_prefix: str) -> str:
+def render_report(results: StudyResults, figure_dir: Path, link_prefix: str,
+                  later_sections: Sequence[str] = ()) -> str:
     """The report's Markdown; draws its own figures into ``figure_dir`` (linked as ``link_prefix`` +
-    file name)."""
+    file name). ``later_sections`` (Markdown, e.g. mop_core.report_structure's) follow section 7."""
     figure_dir.mkdir(parents=True, exist_ok=True)
     sections = [header(results), behaviour_section(results), teachers_section(results, figure_dir, link_prefix),
                 multitask_section(results, figure_dir, link_prefix), losses_section(results, figure_dir, link_prefix),
-                pairings_section(results), aggregate_section(results), shared_section(results),
+                pairings_section(results), aggregate_section(results), shared_section(results), *later_sections,
                 cross_task_section(results)]
     extra = results.figures.get("eval_returns")
     if extra:
@@ -540,8 +546,12 @@ def settings(params: Mapping[str, Any]) -> dict:
                f"PBRL teachers {teachers['schedule']['steps']} steps, seeds {teachers['seeds']}; students "
                f"{distill['schedule']['steps']} steps, seeds {distill['seeds']}; eval {evaluation['episodes']} "
                "episodes per policy and task")
+    hidden = distill.get("student", {}).get("hidden_sizes", [])
     return {"summary": summary,
-            "teacher_seed": distill["teacher_seed"], "snapshot_eval_episodes": collect.get("snapshot_eval_episodes")}
+            "teacher_seed": distill["teacher_seed"], "snapshot_eval_episodes": collect.get("snapshot_eval_episodes"),
+            "student_width": hidden[0] if hidden and len(set(hidden)) == 1 else "plain",
+            "ranking": dict(distill.get("ranking", {})),
+            "structure_pairing": params.get("common_structure", {}).get("pairing")}
 
 
 def load_results(catalogue: Catalogue, params: Mapping[str, Any]) -> StudyResults:
@@ -561,8 +571,12 @@ def load_results(catalogue: Catalogue, params: Mapping[str, Any]) -> StudyResult
         results.multitask += [run] if run else []
     for s in catalogue.students:
         results.pairing_levels[s.pairing] = list(s.levels)
-        run = load_run(s, {"loss": s.loss, "pairing": s.pairing})
-        results.students += [run] if run else []
+        if s.variant:
+            run = load_run(s, {"loss": s.loss, "variant": s.variant, "pairing": s.pairing})
+            results.variants += [run] if run else []
+        else:
+            run = load_run(s, {"loss": s.loss, "pairing": s.pairing})
+            results.students += [run] if run else []
     results.evaluation = read_optional(stage_dir("eval") / "metrics.json")
     shared = stage_dir("shared_computation")
     results.shared = read_optional(shared / "metrics.json")
@@ -575,7 +589,7 @@ def load_results(catalogue: Catalogue, params: Mapping[str, Any]) -> StudyResult
     for members in catalogue.student_groups().values():
         path = shared / "figures" / f"{members[0].name}.png"
         if path.is_file():
-            sorted_figures[f"{members[0].loss} {members[0].pairing} (seed {members[0].seed})"] = \
+            sorted_figures[f"{members[0].recipe} {members[0].pairing} (seed {members[0].seed})"] = \
                 path.relative_to(RESULTS).as_posix()
     figures["sorted_activations"] = sorted_figures
     results.figures = figures

@@ -6,7 +6,9 @@
 - :class:`MultitaskRun`: the naive multi-task PBRL baseline per (level, seed);
 - :class:`StudentRun`: a distilled student per (loss, pairing, seed), with the teachers it learns
   from (one per study task); every seed of a (loss, pairing) trains in one distill entry, as one
-  vectorised group (its ``batch``).
+  vectorised group (its ``batch``). A common-structure variant (thesis 6.3: a width, a ranking
+  regulariser) is a student with a ``variant``, trained in its own distill_width / distill_ranking
+  entry.
 
 Each run has a ``name`` (its files), a ``group`` (the eval stage's key: the runs whose returns form
 one confidence interval, e.g. every seed of a student) and its file paths (mop_core.layout). The
@@ -43,18 +45,37 @@ def multitask_group(level: str) -> str:
     return f"multitask_{level}"
 
 
-def student_group(loss: str, pairing: str) -> str:
-    return f"student_{loss}_{pairing}"
+WIDTH_PREFIX, RANKING_PREFIX = "w", "rank_"  # common-structure variants (thesis 6.3): mop_core.distill.variants
 
 
-def student_batch(loss: str, pairing: str) -> str:
-    """The distill entry (and file folder) of every seed of a (loss, pairing): ``<loss>-<pairing>``."""
-    return f"{loss}-{pairing}"
+def width_variant(width: int) -> str:
+    """The variant of students whose every hidden layer is ``width`` wide (6.3.1)."""
+    return f"{WIDTH_PREFIX}{width}"
 
 
-def structure_group(loss: str, pairing: str) -> str:
+def ranking_variant(loss: str) -> str:
+    """The variant of students trained with the ranking regulariser of ranking loss ``loss`` (6.3.2)."""
+    return f"{RANKING_PREFIX}{loss}"
+
+
+def student_recipe(loss: str, variant: str = "") -> str:
+    """What a student learned by: its loss, and its common-structure variant if any (``mse``,
+    ``mse-w16``, ``mse-rank_pairwise``: mop_core.distill.variants)."""
+    return f"{loss}-{variant}" if variant else loss
+
+
+def student_group(recipe: str, pairing: str) -> str:
+    return f"student_{recipe}_{pairing}"
+
+
+def student_batch(recipe: str, pairing: str) -> str:
+    """The distill entry (and file folder) of every seed of a (recipe, pairing): ``<recipe>-<pairing>``."""
+    return f"{recipe}-{pairing}"
+
+
+def structure_group(recipe: str, pairing: str) -> str:
     """The shared_computation stage's key of a student group (Table 6.1 rows)."""
-    return f"{loss}_{pairing}"
+    return f"{recipe}_{pairing}"
 
 
 def cross_group(level: str, teacher_task: str) -> str:
@@ -146,21 +167,30 @@ class StudentRun:
     pairing: str
     seed: int
     teachers: tuple[TeacherRun, ...]  # one per task, in task-id order
+    variant: str = ""  # a common-structure variant (w16, rank_pairwise: mop_core.distill.variants); "" = MOP
     family = "students"
 
     @property
+    def recipe(self) -> str:
+        return student_recipe(self.loss, self.variant)
+
+    @property
     def name(self) -> str:
-        return f"{self.loss}-{self.pairing}-{self.seed}"
+        return f"{self.recipe}-{self.pairing}-{self.seed}"
 
     @property
     def batch(self) -> str:
-        """The distill entry that trains this student with every other seed of its (loss, pairing), as
-        one vectorised group: ``<loss>-<pairing>``, the folder of its files."""
-        return student_batch(self.loss, self.pairing)
+        """The distill entry that trains this student with every other seed of its (recipe, pairing),
+        as one vectorised group: ``<recipe>-<pairing>``, the folder of its files."""
+        return student_batch(self.recipe, self.pairing)
 
     @property
     def group(self) -> str:
-        return student_group(self.loss, self.pairing)
+        return student_group(self.recipe, self.pairing)
+
+    @property
+    def structure_group(self) -> str:
+        return structure_group(self.recipe, self.pairing)
 
     @property
     def paths(self) -> RunPaths:

@@ -17,7 +17,6 @@ from mop_core.catalogue import Catalogue
 from mop_core.data import read_json, write_json
 from mop_core.distill.run import load_student
 from mop_core.plots import metric_curves, read_curve, sorted_activations
-from mop_core.runs import structure_group
 from mop_core.runtime import configure_compute, derive_seeds
 from mop_core.shared_computation import (
     TIES_NOTE,
@@ -39,7 +38,7 @@ def measure_catalogue(catalogue: Catalogue, config: SharedComputationConfig, thr
     """Measure every student; write out/students/<name>.json and out/figures/<name>.png; return the
     metrics record (Table 6.1 per group: mean over its seeds, and per student) and the seconds taken
     (``seconds``, ``rollout_seconds``: the stage's timing record)."""
-    groups = {structure_group(members[0].loss, members[0].pairing): members
+    groups = {members[0].structure_group: members
               for members in catalogue.student_groups().values()}
     runs = [run for members in groups.values() for run in members]
     first_student = {members[0].name: group for group, members in groups.items()}

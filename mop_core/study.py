@@ -23,8 +23,9 @@ from mop_core.nn import ACTOR_TYPES
 from mop_core.schedule import TrainSchedule
 from mop_core.tasks import check_task_list
 
-SECTIONS = ("study", "collect", "relabel", "train_teachers", "train_multitask", "distill", "eval",
-            "shared_computation")
+SECTIONS = ("study", "collect", "relabel", "train_teachers", "train_multitask", "distill", "common_structure",
+            "eval", "shared_computation")
+RANKING_LOSS_NAMES = ("pairwise", "listwise", "approx_ndcg")  # mop_core.ranking.RANKING_LOSSES (tested equal)
 
 
 @dataclass(frozen=True)
@@ -99,6 +100,26 @@ class DistillGrid:
     schedule: TrainSchedule
 
 
+@dataclass(frozen=True)
+class StructureGrid:
+    """The common_structure section (thesis 6.3): MSE students of one distill pairing next to plain
+    MOP, one group of ``distill.seeds`` per width (6.3.1) and per ranking loss (6.3.2). Empty lists
+    train none."""
+
+    pairing: str
+    widths: tuple[int, ...] = ()
+    ranking_losses: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        require(all(isinstance(w, int) and not isinstance(w, bool) and w >= 1 for w in self.widths), "widths",
+                "a list of positive integers (hidden width of every student layer)", list(self.widths))
+        require_unique(self.widths, "widths")
+        for i, loss in enumerate(self.ranking_losses):
+            require(loss in RANKING_LOSS_NAMES, f"ranking_losses[{i}]", f"one of {', '.join(RANKING_LOSS_NAMES)}",
+                    loss)
+        require_unique(self.ranking_losses, "ranking_losses")
+
+
 # ---- sections -------------------------------------------------------------------------------------
 def check_sections(params: Mapping[str, Any], where: str = "params.yaml") -> None:
     """Refuse a section no stage reads (a misspelled ``distil:`` would otherwise be ignored)."""
@@ -150,6 +171,22 @@ def pairing_levels(pairing: str, study: StudyConfig, key: str = "--pairing") -> 
     for level in levels:
         require(level in study.levels, key, f"levels among study.levels {list(study.levels)}", pairing)
     return levels
+
+
+def structure_grid(params: Mapping[str, Any], study: StudyConfig) -> StructureGrid:
+    """The common_structure section, its pairing checked against the study's levels and distill.pairings."""
+    grid = from_mapping(StructureGrid, section(params, "common_structure"), "common_structure")
+    levels = pairing_levels(grid.pairing, study, "common_structure.pairing")
+    pairings = [pairing_levels(str(p), study, "distill.pairings") for p in section(params, "distill").get(
+        "pairings") or []]
+    require(levels in pairings, "common_structure.pairing", f"one of distill.pairings "
+            f"{section(params, 'distill').get('pairings')} (the MOP students the variants are compared with)",
+            grid.pairing)
+    if grid.widths or grid.ranking_losses:
+        actors = section(params, "train_teachers").get("actors", [])
+        require("deterministic" in actors, "common_structure", "deterministic teachers in train_teachers.actors "
+                "(the variants are MSE students)", actors)
+    return grid
 
 
 def distill_grid(params: Mapping[str, Any], study: StudyConfig, losses: Mapping[str, str]) -> DistillGrid:

@@ -11,10 +11,11 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-from mop_core.catalogue import LOSS_ACTORS
+from mop_core.catalogue import LOSS_ACTORS, structure_variants
 from mop_core.collect import CollectConfig, collect_configs
 from mop_core.config import keys_under, require
 from mop_core.distill.distiller import distill_config
+from mop_core.distill.variants import variant_config
 from mop_core.evaluation import EvalConfig
 from mop_core.relabel import RelabelConfig
 from mop_core.shared_computation import shared_computation_config
@@ -81,6 +82,10 @@ def check_params(params: Mapping[str, Any], where: str = "params.yaml") -> None:
     multitask_grid(params, study)
     for loss in distill_grid(params, study, LOSS_ACTORS).losses:
         distill_config(params, loss)
+    variants = structure_variants(params)[1]
+    with keys_under("distill"):  # a variant's settings (ranking.states against batch_size) under distill.*
+        for variant in variants:
+            variant_config(distill_config(params, "mse"), variant)
     check_batch_sizes(params, study, collect)
     typed_section(params, "eval", EvalConfig)
     shared_computation_config(params)

@@ -1,6 +1,7 @@
 """distill stage: the multi-task students of one (loss, pairing), every seed trained together, a `matrix` entry each.
 
     python stages/distill.py --loss mse --pairing medium [--seeds 0 2]
+    python stages/distill.py --loss mse --pairing medium --variant w16   (distill_width, distill_ranking)
 
 Trains one student per seed of ``distill.seeds`` (or of ``--seeds``, a subset: a group of one reruns a
 single seed) as one vectorised group (mop_core.distill.distiller.Distiller: each run its own
@@ -13,6 +14,11 @@ data/students/<loss>-<pairing>/<loss>-<pairing>-<seed>.pt, its metrics
 results/students/metrics/<loss>-<pairing>/<name>.json, its learning curve
 results/students/curves/<loss>-<pairing>/<name>.tsv and one curve per logged per-state tau in
 results/students/tau/<loss>-<pairing>/<name>/; and the group's timing results/timings/students/<loss>-<pairing>.json.
+
+``--variant`` (w<width>, rank_<ranking loss>: mop_core.distill.variants) trains a common-structure
+variant of the students (thesis 6.3; the distill_width and distill_ranking entries): the same
+teachers, states and seeds as the plain students, one setting changed; its files use
+``<loss>-<variant>-<pairing>`` where the plain ones use ``<loss>-<pairing>``.
 """
 
 from __future__ import annotations
@@ -21,7 +27,7 @@ import argparse
 
 from common import load_params, require_inputs, run_stage
 
-from mop_core.catalogue import LOSS_ACTORS, make_student
+from mop_core.catalogue import LOSS_ACTORS, make_student, structure_variants
 from mop_core.config import ConfigError, keys_under, require
 from mop_core.data import read_json
 from mop_core.distill.distiller import distill_config
@@ -33,9 +39,9 @@ from mop_core.distill.run import (
     print_summary,
     write_tau_curves,
 )
+from mop_core.distill.variants import variant_config
 from mop_core.layout import student_inputs_file
 from mop_core.plots import read_curve
-from mop_core.runs import student_batch
 from mop_core.runtime import configure_compute, progress_enabled, resolve_device
 from mop_core.study import distill_grid, pairing_levels, study_config
 from mop_core.teachers import teacher_config
@@ -45,6 +51,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--loss", required=True, choices=tuple(LOSSES))
     parser.add_argument("--pairing", required=True)
+    parser.add_argument("--variant", default="", help="a common-structure variant: w<width> or rank_<loss>")
     parser.add_argument("--seeds", type=int, nargs="+", default=None,
                         help="a subset of distill.seeds to train (default: all of them)")
     args = parser.parse_args()
@@ -52,14 +59,20 @@ def main() -> None:
     params = load_params()
     study = study_config(params)
     grid, config = distill_grid(params, study, LOSS_ACTORS), distill_config(params, args.loss)
+    structure_pairing, variants = structure_variants(params)
+    require(not args.variant or (args.variant in variants and args.pairing == structure_pairing), "--variant",
+            f"one of the common_structure variants {list(variants)} with --pairing {structure_pairing}",
+            args.variant)
+    config = variant_config(config, args.variant)
     seeds = list(grid.seeds) if args.seeds is None else args.seeds
     require(len(set(seeds)) == len(seeds) and set(seeds) <= set(grid.seeds), "--seeds",
             f"distinct seeds of distill.seeds {list(grid.seeds)}", seeds)
     if len(study.tasks) < 2:
         raise ConfigError(f"study.tasks: a multi-task student needs at least two tasks, got {list(study.tasks)}")
     levels = pairing_levels(args.pairing, study)
-    runs = [make_student(args.loss, args.pairing, seed, study.tasks, levels, grid.teacher_seed) for seed in seeds]
-    batch = student_batch(args.loss, args.pairing)
+    runs = [make_student(args.loss, args.pairing, seed, study.tasks, levels, grid.teacher_seed, args.variant)
+            for seed in seeds]
+    batch = runs[0].batch
     device = resolve_device(study.device, "study.device")
     require_inputs([t.paths.checkpoint for t in runs[0].teachers], "train_teachers")
     require_inputs(runs[0].datasets, "collect")

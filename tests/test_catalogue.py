@@ -18,7 +18,7 @@ from mop_core.catalogue import (
     make_student,
     student_inputs,
 )
-from mop_core.config import InputFileError
+from mop_core.config import ConfigError, InputFileError
 from mop_core.runs import (
     BehaviourRun,
     MultitaskRun,
@@ -53,7 +53,9 @@ def test_the_tiny_study_has_these_runs_in_this_order(catalogue):
     assert [t.name for t in catalogue.teachers] == ["stand-medium-deterministic-0", "stand-medium-gaussian-0",
                                                     "walk-medium-deterministic-0", "walk-medium-gaussian-0"]
     assert catalogue.multitask == (MultitaskRun("medium", 0, TASKS),)
-    assert [s.name for s in catalogue.students] == ["mse-medium-0", "q-medium-0", "kl-medium-0"]
+    assert [s.name for s in catalogue.students] == ["mse-medium-0", "q-medium-0", "kl-medium-0", "mse-w8-medium-0",
+                                                    "mse-rank_pairwise-medium-0"]
+    assert [s.name for s in catalogue.mop_students()] == ["mse-medium-0", "q-medium-0", "kl-medium-0"]
     assert catalogue.teacher_seed == 0 and catalogue.teacher_actors == ("deterministic", "gaussian")
 
 
@@ -78,6 +80,11 @@ def test_run_names_groups_and_files(catalogue):
     assert student.paths.checkpoint == Path("data/students/kl-medium/kl-medium-0.pt") and student.batch == "kl-medium"
     assert student.paths.resume == Path("data/resume/students-kl-medium.pt")  # the group's, shared by its seeds
     assert student.tasks == TASKS and student.levels == ("medium", "medium") and student.teacher_seed == 0
+    variant = catalogue.students[4]  # a common-structure variant: the plain MSE student's teachers, its own files
+    assert variant.variant == "rank_pairwise" and variant.recipe == "mse-rank_pairwise"
+    assert variant.group == "student_mse-rank_pairwise_medium" and variant.structure_group == "mse-rank_pairwise_medium"
+    assert variant.paths.checkpoint == Path("data/students/mse-rank_pairwise-medium/mse-rank_pairwise-medium-0.pt")
+    assert variant.teachers == catalogue.students[0].teachers
     assert student.datasets == (Path("data/datasets/stand-medium.hdf5"), Path("data/datasets/walk-medium.hdf5"))
     assert cross_group("expert", "walk") == "cross_expert_walk"
     assert is_cross_group("cross_medium_stand") and not is_cross_group("teacher_medium_deterministic")
@@ -105,6 +112,9 @@ def test_eval_jobs_cover_every_policy_and_the_cross_task_teachers(catalogue):
     for loss in ("mse", "q", "kl"):
         checkpoint = Path(f"data/students/{loss}-medium/{loss}-medium-0.pt")
         expected += [Job(f"student_{loss}_medium", 0, checkpoint, task, task) for task in TASKS]
+    for recipe in ("mse-w8", "mse-rank_pairwise"):
+        checkpoint = Path(f"data/students/{recipe}-medium/{recipe}-medium-0.pt")
+        expected += [Job(f"student_{recipe}_medium", 0, checkpoint, task, task) for task in TASKS]
     assert catalogue.eval_jobs() == expected
     assert catalogue.cross_task_teachers() == [TeacherRun("stand", "medium", "deterministic", 0),
                                                TeacherRun("walk", "medium", "deterministic", 0)]
@@ -132,10 +142,14 @@ def test_references_and_student_comparisons(catalogue):
         "student_mse_medium": deterministic,
         "student_q_medium": deterministic,
         "student_kl_medium": {task: Reference("teacher_medium_gaussian", 0) for task in TASKS},
+        "student_mse-w8_medium": deterministic,
+        "student_mse-rank_pairwise_medium": deterministic,
     }
     assert catalogue.student_comparisons() == [("student_mse_medium", "student_q_medium"),
                                                ("student_mse_medium", "student_kl_medium"),
-                                               ("student_q_medium", "student_kl_medium")]
+                                               ("student_q_medium", "student_kl_medium"),
+                                               ("student_mse-w8_medium", "student_mse_medium"),
+                                               ("student_mse-rank_pairwise_medium", "student_mse_medium")]
 
 
 def test_a_mixed_pairing_maps_its_levels_per_task(tiny_params):
@@ -145,9 +159,11 @@ def test_a_mixed_pairing_maps_its_levels_per_task(tiny_params):
     assert [t.name for t in catalogue.teachers[:4]] == ["stand-expert-deterministic-0", "stand-expert-gaussian-0",
                                                         "stand-medium-deterministic-0", "stand-medium-gaussian-0"]
     assert len(catalogue.teachers) == 8
-    assert [s.name for s in catalogue.students] == ["mse-expert+medium-0", "mse-expert+medium-1", "mse-medium-0",
-                                                    "mse-medium-1", "kl-expert+medium-0", "kl-expert+medium-1",
-                                                    "kl-medium-0", "kl-medium-1"]
+    assert [s.name for s in catalogue.mop_students()] == [
+        "mse-expert+medium-0", "mse-expert+medium-1", "mse-medium-0", "mse-medium-1", "kl-expert+medium-0",
+        "kl-expert+medium-1", "kl-medium-0", "kl-medium-1"]
+    assert [s.name for s in catalogue.variant_students()] == [  # common_structure.pairing: medium
+        "mse-w8-medium-0", "mse-w8-medium-1", "mse-rank_pairwise-medium-0", "mse-rank_pairwise-medium-1"]
     mixed = catalogue.students[0]
     assert mixed.teachers == (TeacherRun("stand", "expert", "deterministic", 0),
                               TeacherRun("walk", "medium", "deterministic", 0))
@@ -162,10 +178,12 @@ def test_a_mixed_pairing_maps_its_levels_per_task(tiny_params):
                                                       "walk": Reference("teacher_medium_gaussian", 0)}
     # head to head only within a pairing
     assert catalogue.student_comparisons() == [("student_mse_expert+medium", "student_kl_expert+medium"),
-                                               ("student_mse_medium", "student_kl_medium")]
+                                               ("student_mse_medium", "student_kl_medium"),
+                                               ("student_mse-w8_medium", "student_mse_medium"),
+                                               ("student_mse-rank_pairwise_medium", "student_mse_medium")]
     groups = catalogue.student_groups()
     assert list(groups) == ["student_mse_expert+medium", "student_mse_medium", "student_kl_expert+medium",
-                            "student_kl_medium"]
+                            "student_kl_medium", "student_mse-w8_medium", "student_mse-rank_pairwise_medium"]
     assert [s.seed for s in groups["student_mse_expert+medium"]] == [0, 1]
     cross = [j for j in catalogue.eval_jobs() if is_cross_group(j.group)]
     assert [(j.group, j.eval_task) for j in cross] == [("cross_expert_stand", "walk"), ("cross_medium_stand", "walk"),
@@ -184,11 +202,26 @@ def test_the_teacher_seed_students_learn_from(tiny_params):
 
 
 def test_no_cross_task_jobs_without_deterministic_teachers(tiny_params):
-    params = _with(tiny_params, train_teachers={"actors": ["gaussian"]}, distill={"losses": ["kl"]})
+    params = _with(tiny_params, train_teachers={"actors": ["gaussian"]}, distill={"losses": ["kl"]},
+                   common_structure={"widths": [], "ranking_losses": []})
     catalogue = build_catalogue(params)
     assert catalogue.cross_task_teachers() == []
     assert not [j for j in catalogue.eval_jobs() if is_cross_group(j.group)]
     assert catalogue.student_comparisons() == []  # one loss: nothing to compare
+
+
+def test_common_structure_variants_need_deterministic_teachers_and_a_distill_pairing(tiny_params):
+    with pytest.raises(ConfigError, match="common_structure: expected deterministic teachers"):
+        build_catalogue(_with(tiny_params, train_teachers={"actors": ["gaussian"]}, distill={"losses": ["kl"]}))
+    with pytest.raises(ConfigError, match="common_structure.pairing: expected one of distill.pairings"):
+        build_catalogue(_with(tiny_params, study={"levels": ["expert", "medium"]},
+                              common_structure={"pairing": "expert"}))
+    with pytest.raises(ConfigError, match=r"common_structure.ranking_losses\[0\]: expected one of pairwise"):
+        build_catalogue(_with(tiny_params, common_structure={"ranking_losses": ["ndcg"]}))
+    with pytest.raises(ConfigError, match="common_structure.widths: expected a list of positive integers"):
+        build_catalogue(_with(tiny_params, common_structure={"widths": [0]}))
+    none = build_catalogue(_with(tiny_params, common_structure={"widths": [], "ranking_losses": []}))
+    assert none.variant_students() == [] and len(none.students) == 3
 
 
 def test_make_student():

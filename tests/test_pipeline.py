@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 import yaml
 from conftest import ROOT, TEST_DEVICE
 
@@ -58,6 +59,14 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
     for loss in ("mse", "q", "kl"):
         assert (repo / "data" / "students" / f"{loss}-medium" / f"{loss}-medium-0.pt").is_file()
         assert (repo / "results" / "students" / "curves" / f"{loss}-medium" / f"{loss}-medium-0.tsv").is_file()
+    for recipe in ("mse-w8", "mse-rank_pairwise"):  # the common_structure students (distill_width, distill_ranking)
+        assert (repo / "data" / "students" / f"{recipe}-medium" / f"{recipe}-medium-0.pt").is_file()
+        assert (repo / "results" / "timings" / "students" / f"{recipe}-medium.json").is_file()
+    config = torch.load(repo / "data/students/mse-w8-medium/mse-w8-medium-0.pt", weights_only=False)["distill_config"]
+    assert config["student"]["hidden_sizes"] == [8, 8] and config["ranking"]["loss"] == "none"
+    config = torch.load(repo / "data/students/mse-rank_pairwise-medium/mse-rank_pairwise-medium-0.pt",
+                        weights_only=False)["distill_config"]
+    assert config["ranking"]["loss"] == "pairwise"
     assert not list((repo / "data" / "resume").glob("*"))  # finished runs leave no resume files
     evaluation = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
     for task in ("stand", "walk"):
@@ -74,7 +83,9 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
     assert set(aggregate["probability_of_improvement"]) == {
         "multitask_medium_vs_teachers", "student_mse_medium_vs_teachers", "student_q_medium_vs_teachers",
         "student_kl_medium_vs_teachers", "student_mse_medium_vs_student_q_medium",
-        "student_mse_medium_vs_student_kl_medium", "student_q_medium_vs_student_kl_medium"}
+        "student_mse_medium_vs_student_kl_medium", "student_q_medium_vs_student_kl_medium",
+        "student_mse-w8_medium_vs_teachers", "student_mse-rank_pairwise_medium_vs_teachers",
+        "student_mse-w8_medium_vs_student_mse_medium", "student_mse-rank_pairwise_medium_vs_student_mse_medium"}
     assert all(0 <= a["ci_low"] <= a["value"] <= a["ci_high"] <= 1
                for a in aggregate["probability_of_improvement"].values())
     assert set(evaluation["cross_task"]["medium"]["stand"]) == {"stand", "walk"}
@@ -133,7 +144,7 @@ def test_the_readme_shows_the_tested_commands():
 def test_metrics_show_holds_the_headline_numbers_and_the_timings_apart(repo):
     shown = json.loads(_run(["dvc", "metrics", "show", "--json"], repo).stdout)[""]["data"]
     assert all(path == "results/metrics.json" or path.startswith("results/timings/") for path in shown), shown
-    assert len([path for path in shown if path.startswith("results/timings/")]) == 10  # one per stage entry
+    assert len([path for path in shown if path.startswith("results/timings/")]) == 12  # one per stage entry
     headline = shown["results/metrics.json"]["data"]
     assert headline == json.loads((repo / "results" / "metrics.json").read_text())
     evaluation = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
@@ -151,7 +162,7 @@ def test_metrics_show_holds_the_headline_numbers_and_the_timings_apart(repo):
     rows = [line for line in table.splitlines() if line.strip()]
     assert "normalised_return.student_mse_medium.stand" in table and len(rows) == 3  # header, rule, one row
     timings = _run(_command(TIMINGS_SHOW, "--md"), repo).stdout
-    assert timings.count("results/timings/") == 10 and "normalised_return" not in timings
+    assert timings.count("results/timings/") == 12 and "normalised_return" not in timings
 
 
 def test_every_plot_renders_and_only_the_current_runs_are_drawn(repo):
@@ -202,10 +213,11 @@ def _check_report(repo: Path) -> None:
     """The report has every thesis section, and every figure it links is a PNG file."""
     report = (repo / "results" / "report.md").read_text()
     for title in ("Table 4.1", "Figure 5.1", "Figure 5.3", "Figure 5.4", "Appendix E", "IQM", "Table 6.1",
-                  "Figure 6.3", "Table 6.3"):
+                  "Figure 6.3", "Figure 6.4", "Figure 6.5", "Table 6.3"):
         assert title in report
     assert report.index("Table 4.1") < report.index("Figure 5.1") < report.index("Table 6.1") < report.index(
-        "Table 6.3")
+        "Figure 6.5") < report.index("Table 6.3")
+    assert "| 8 | mse-w8 | 1 |" in report and "| pairwise | mse-rank_pairwise | 1 |" in report
     links = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", report)
     assert len(links) >= 7  # teachers, multitask, losses, 3 sorted-activation figures, tau curve, returns
     for link in links:
@@ -251,6 +263,9 @@ def test_each_parameter_section_invalidates_only_its_stages(repo):
     assert not {"collect", "relabel", "eval"} & teachers and not any(s.startswith("distill") for s in teachers)
     assert _invalidated_by(repo, "eval", "episodes", 2) == {"eval", "report"}  # the report names the budget
     assert _invalidated_by(repo, "shared_computation", "episodes", 2) == {"shared_computation"}
+    # dropping the width sweep leaves the ranking students (their entry's item and params are unchanged)
+    assert _invalidated_by(repo, "common_structure", "widths", []) == {
+        "student_inputs", "eval", "shared_computation", "report"}
 
 
 def test_a_changed_teacher_makes_only_its_own_students_stale(repo):
@@ -279,7 +294,7 @@ def test_a_changed_teacher_makes_only_its_own_students_stale(repo):
 def test_exp_run_of_distill_param_reruns_only_distill_and_what_reads_students(repo):
     out = _run(["dvc", "exp", "run", "-S", "distill.learning_rate=0.002"], repo).stdout
     assert _stages_run(out) == {"params", "distill@mse-medium", "distill@q-medium", "distill@kl-medium",
-                                "eval", "shared_computation", "report"}
+                                "distill_width@8", "distill_ranking@pairwise", "eval", "shared_computation", "report"}
     metrics = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
     assert "student_mse_medium" in metrics["stand"]
     diff = json.loads(_run(_command(HEADLINE_DIFF, "--json"), repo).stdout)  # against the last commit

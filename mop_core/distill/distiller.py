@@ -25,11 +25,13 @@ from mop_core.config import ConfigError, from_mapping, require
 from mop_core.distill.losses import LOSSES, Q_REDUCTIONS, LossInputs, mse_per_state
 from mop_core.distill.states import STATE_SOURCES, TaskStates
 from mop_core.distill.student import Student, StudentConfig, StudentGroup
-from mop_core.nn import EnsembleCritic, adam
+from mop_core.nn import EnsembleCritic, adam, with_task_id
+from mop_core.ranking import RANKING_LOSSES, SYMMETRIC_LOSSES, cross_task_ranking, ranking_loss
 from mop_core.step_metrics import run_key
 from mop_core.study import DISTILL_GRID_KEYS, section
 
 LR_SCHEDULES = ("constant", "cosine")
+RANKING_CHOICES = ("none", *RANKING_LOSSES)
 PROBE_SOURCES = ("offline", "visited")
 
 
@@ -38,6 +40,39 @@ def learning_rate_at(config: "DistillConfig", step: int, total_steps: int) -> fl
     if config.lr_schedule == "constant":
         return config.learning_rate
     return config.learning_rate * 0.5 * (1.0 + math.cos(math.pi * min(step, total_steps) / total_steps))
+
+
+@dataclass(frozen=True)
+class RankingConfig:
+    """The ranking regulariser of thesis 6.3.2 (mop_core.ranking): the loss becomes
+
+        L_distill + weight * sum_j layer_weights[j] * mean_{i != k} mean_s L_rank(l_j(s, i), sg[l_j(s, k)])
+
+    over each hidden layer j, every ordered pair of task ids and ``states`` states per task per step
+    (the first ``states`` of the step's draws; the thesis compares the whole batch, whose pairwise
+    loss costs ``batch * width^2`` per layer: 2 states per task keep a step within ~2x a plain one
+    on 2 CPU cores)."""
+
+    loss: str = "none"  # none | pairwise | listwise | approx_ndcg
+    weight: float = 100.0  # lambda (thesis: 100)
+    layer_weights: tuple[float, ...] = ()  # one per hidden layer; empty = 1 for every layer
+    states: int = 2  # states per task per step the regulariser compares under every task id
+    temperature: float = 0.1  # approx_ndcg's sigmoid temperature (smooth ranks)
+
+    def __post_init__(self) -> None:
+        require(self.loss in RANKING_CHOICES, "loss", f"one of {RANKING_CHOICES}", self.loss)
+        require(self.weight >= 0, "weight", "a non-negative number (lambda)", self.weight)
+        require(all(w >= 0 for w in self.layer_weights), "layer_weights", "non-negative numbers",
+                list(self.layer_weights))
+        require(self.states >= 1, "states", "a positive integer", self.states)
+        require(self.temperature > 0, "temperature", "a positive number", self.temperature)
+
+    @property
+    def active(self) -> bool:
+        return self.loss != "none" and self.weight > 0
+
+    def weights_for(self, layers: int) -> tuple[float, ...]:
+        return self.layer_weights or (1.0,) * layers
 
 
 @dataclass(frozen=True)
@@ -56,6 +91,7 @@ class DistillConfig:
     probe_source: str = "offline"  # offline: fixed dataset states, the same for every student; visited: states
     #                                the student visits in each evaluation (the reference code's choice)
     step_per_task: bool = False  # one Adam step per task per update (reference code) instead of one over all tasks
+    ranking: RankingConfig = field(default_factory=RankingConfig)  # thesis 6.3.2 regulariser (loss none: off)
 
     def __post_init__(self) -> None:
         require(self.loss in LOSSES, "loss", f"one of {tuple(LOSSES)}", self.loss)
@@ -71,6 +107,13 @@ class DistillConfig:
                 self.num_states)
         require(self.state_source == "offline" or self.num_states > 0, "num_states",
                 "a positive number of states for state_source online", self.num_states)
+        hidden = len(self.student.hidden_sizes)
+        require(len(self.ranking.layer_weights) in (0, hidden), "ranking.layer_weights",
+                f"one weight per hidden layer of the student ({hidden}) or [] (1 each)",
+                list(self.ranking.layer_weights))
+        require(not self.ranking.active or self.ranking.states <= self.batch_size, "ranking.states",
+                f"at most batch_size={self.batch_size} (the regulariser compares states of the step's batch)",
+                self.ranking.states)
 
 
 def distill_config(params: Mapping[str, Any], loss: str) -> DistillConfig:
@@ -155,6 +198,11 @@ class Distiller:
                                                             tasks, sizes, self.critics, cfg.q_reduction))
         run_losses = per_state.mean(-1)  # [R]
         metrics: dict[str, torch.Tensor] = {}
+        if cfg.ranking.active and len(self.tasks) > 1:
+            regulariser = self.ranking_term(obs, sizes)
+            run_losses = run_losses + cfg.ranking.weight * regulariser
+            for r in range(self.runs):
+                metrics[run_key("ranking", r)] = regulariser[r].detach()
         with torch.no_grad():
             action_mse = mse_per_state(actions, teacher_actions)
             for r in range(self.runs):
@@ -163,6 +211,18 @@ class Distiller:
                     metrics[run_key(f"loss_{self.tasks[t]}", r)] = part.mean()
                     metrics[run_key(f"action_mse_{self.tasks[t]}", r)] = mse.mean()
         return run_losses.sum(), metrics
+
+    def ranking_term(self, obs: torch.Tensor, sizes: Sequence[int]) -> torch.Tensor:
+        """The ranking regulariser per run ``[R]`` (:class:`RankingConfig`) on the first
+        ``ranking.states`` states of each task's rows of ``obs [R, B, o]``, each under every task id."""
+        cfg, m = self.config.ranking, len(self.tasks)
+        starts = [sum(sizes[:k]) for k in range(len(sizes))]
+        states = torch.cat([obs[:, start:start + min(cfg.states, size)] for start, size in zip(starts, sizes)], dim=1)
+        under_ids = torch.stack([with_task_id(states, k, m) for k in range(m)], dim=1)  # [R, m, S, o + m]
+        runs, _, count, width = under_ids.shape
+        layers = [a.view(runs, m, count, -1) for a in self.group.hidden(under_ids.view(runs, m * count, width))]
+        return cross_task_ranking(layers, ranking_loss(cfg.loss, cfg.temperature), cfg.weights_for(len(layers)),
+                                  symmetric=cfg.loss in SYMMETRIC_LOSSES)
 
     def _step(self, loss: torch.Tensor) -> None:
         self.optimizer.zero_grad(set_to_none=True)

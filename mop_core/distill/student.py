@@ -99,6 +99,16 @@ class StudentGroup(nn.Module):
         x = with_task_id(obs, task.expand(obs.shape[:-1]), self.num_tasks)
         return ensemble_forward(self.net, x, member_loop_pays(x.shape[1], max(self.config.hidden_sizes), x.device))
 
+    def hidden(self, x: torch.Tensor) -> list[torch.Tensor]:
+        """Each hidden layer's ReLU activations ``[R, B, width]`` for inputs ``x [R, B, o + m]`` (state and
+        one-hot task id), through autograd (the ranking regulariser's gradient flows through them)."""
+        layers = []
+        for module in self.net:
+            x = module(x)
+            if isinstance(module, nn.ReLU):
+                layers.append(x)
+        return layers
+
     def forward(self, obs: torch.Tensor, task: torch.Tensor) -> torch.Tensor:
         """Each run's action ``[R, B, k]`` (a Gaussian student's mean)."""
         if self.gaussian:

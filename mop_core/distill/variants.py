@@ -1,0 +1,36 @@
+"""Student variants of the common-structure experiments (thesis 6.3), each a change of one
+distillation setting next to plain MOP:
+
+- ``w<width>`` (6.3.1, Figure 6.4): every hidden layer ``width`` wide instead of
+  ``distill.student.hidden_sizes`` (same depth);
+- ``rank_<loss>`` (6.3.2, Figure 6.5): the ranking regulariser with ranking loss ``<loss>``
+  (``distill.ranking``'s weight, layer weights, states and temperature; mop_core.ranking).
+
+A variant's students are named ``<loss>-<variant>-<pairing>-<seed>`` (the names: mop_core.runs);
+plain MOP students have no variant. The study's variants come from the ``common_structure`` params section
+(mop_core.study.structure_grid).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+from mop_core.ranking import RANKING_LOSSES
+from mop_core.runs import RANKING_PREFIX, WIDTH_PREFIX
+
+if TYPE_CHECKING:
+    from mop_core.distill.distiller import DistillConfig
+
+
+def variant_config(config: "DistillConfig", variant: str) -> "DistillConfig":
+    """``config`` with ``variant``'s change ("" = plain MOP: unchanged)."""
+    if not variant:
+        return config
+    if variant.startswith(RANKING_PREFIX) and variant[len(RANKING_PREFIX):] in RANKING_LOSSES:
+        return replace(config, ranking=replace(config.ranking, loss=variant[len(RANKING_PREFIX):]))
+    width = variant[len(WIDTH_PREFIX):]
+    if variant.startswith(WIDTH_PREFIX) and width.isdigit() and int(width) >= 1:
+        sizes = (int(width),) * len(config.student.hidden_sizes)
+        return replace(config, student=replace(config.student, hidden_sizes=sizes))
+    raise ValueError(f"variant: expected '', w<width> or rank_<one of {tuple(RANKING_LOSSES)}>, got {variant!r}")
