@@ -7,7 +7,12 @@ Prints, at the quick (params.yaml) and thesis (profiles/thesis.yaml) student and
 - a group of R = 1, 2, 4, 8 students trained as one vectorised model (the distill stage's seeds):
   time per update of the group over one student's;
 - evaluation env steps/s of a student policy: one walker at a time vs ``rollout_envs`` walkers
-  stepped together (one batched policy call per step), and their ratio.
+  stepped together (one batched policy call per step), and their ratio;
+- a group of 3 students with each ranking regulariser (``distill_ranking``, at ``distill.ranking``'s
+  settings): time per update over the plain group's;
+- the curve evaluation of a group of 3 students (5 episodes each, one task): the runs one after
+  another vs in one MuJoCo batch (``policies_returns_and_states``), and the policy on 2 torch threads
+  vs 1 (what ``rollout.policy_threads`` enforces).
 
 Run: ``python benchmarks/bench_distill.py [--threads N]``.
 """
@@ -25,8 +30,10 @@ from mop_core.config import from_mapping
 from mop_core.distill.distiller import DistillConfig, Distiller
 from mop_core.distill.run import student_policy
 from mop_core.distill.states import TaskStates, task_states, teacher_outputs
+from mop_core.distill.variants import variant_config
 from mop_core.nn import DeterministicActor
-from mop_core.rollout import episode_returns
+from mop_core.ranking import RANKING_LOSSES
+from mop_core.rollout import episode_returns, policies_returns_and_states, policy_threads, returns_and_states
 from mop_core.runtime import configure_compute
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -118,6 +125,47 @@ def rollout_rates(envs: int, hidden: tuple[int, ...], episode_length: int = 200)
           f"ratio {batched / single:.2f}x")
 
 
+def ranking_rates(name: str, config: DistillConfig, teacher_sizes: tuple[int, ...], steps: int, runs: int = 3
+                  ) -> None:
+    """Time per update of a group of ``runs`` students with each ranking regulariser over the plain group's."""
+    _, targets = _targets(teacher_sizes)
+    seconds = {}
+    for variant in ["", *(f"rank_{loss}" for loss in RANKING_LOSSES)]:
+        group = Distiller(variant_config(config, variant), [targets] * runs, 24, 6, list(range(runs)))
+        seconds[variant] = 1.0 / rate(lambda: [group.update() for _ in range(steps)], steps)
+    cells = ", ".join(f"{v.removeprefix('rank_')} {seconds[v] / seconds['']:.2f}x" for v in seconds if v)
+    print(f"{name}: ranking regulariser ({config.ranking.states} state(s)/task/step, {runs} runs, student "
+          f"{list(config.student.hidden_sizes)}) time per update / plain group's: {cells}; plain "
+          f"{1e3 * seconds['']:.2f} ms")
+
+
+def group_eval_rates(hidden: tuple[int, ...], runs: int = 3, episodes: int = 5, episode_length: int = 300) -> None:
+    """A group's curve evaluation: its runs' rollouts one after another vs stepped together, and the
+    policy on 2 torch threads vs 1."""
+    from mop_core.distill.student import Student, StudentConfig
+
+    torch.manual_seed(0)
+    policies = [student_policy(Student(StudentConfig(hidden_sizes=hidden), 24, 6, 2).eval(), 0, torch.device("cpu"))
+                for _ in range(runs)]
+    seeds = list(range(episodes))
+
+    def two_threads(policy):
+        def call(obs):
+            with policy_threads(2):
+                return policy(obs)
+        return call
+
+    steps = runs * episodes * episode_length
+    one_by_one_2 = rate(lambda: [returns_and_states(two_threads(p), "walk", seeds, episode_length) for p in policies],
+                        steps, repeats=2)
+    one_by_one = rate(lambda: [returns_and_states(p, "walk", seeds, episode_length) for p in policies], steps,
+                      repeats=2)
+    together = rate(lambda: policies_returns_and_states(policies, "walk", seeds, episode_length), steps, repeats=2)
+    print(f"group evaluation env steps/s ({runs} students {list(hidden)}, {episodes} episodes each): runs one by one "
+          f"with the policy on 2 torch threads {one_by_one_2:.0f}, on 1 thread {one_by_one:.0f} "
+          f"({one_by_one / one_by_one_2:.2f}x), runs in one batch {together:.0f} ({together / one_by_one_2:.2f}x)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--threads", type=int, default=1, help="torch threads (the stage's distill.threads)")
@@ -131,6 +179,8 @@ def main() -> None:
     group_rates("quick", quick, quick_teacher, steps=50)
     group_rates("thesis", thesis, thesis_teacher, steps=10)
     rollout_rates(envs, quick.student.hidden_sizes)
+    ranking_rates("quick", quick, quick_teacher, steps=30)
+    group_eval_rates(quick.student.hidden_sizes)
 
 
 if __name__ == "__main__":

@@ -416,6 +416,33 @@ def tau_pair(row: Mapping, key: str, digits: int = 3) -> str:
     return f"{fmt(row[f'{key}_a'], digits)} / {fmt(row[f'{key}_b'], digits)}"
 
 
+def beyond_cka_cells(row: Mapping) -> list[str]:
+    """Procrustes, debiased CKA and task selectivity cells of a Table 6.1 row (n/a in an older record)."""
+    def cell(key: str) -> str:
+        value = fmt(row.get(key), 3)
+        return value + (f" (sd {fmt(row[f'{key}_seed_sd'], 3)})" if f"{key}_seed_sd" in row else "")
+    return [cell("procrustes"), cell("debiased_cka"),
+            f"{fmt(row.get('selectivity_mean'), 3)} / {fmt(row.get('selective_share'), 3)}"]
+
+
+def activity_lines(shared: Mapping) -> list[str]:
+    """The share of zero activations, and of dead and dormant neurons, per student, task and layer."""
+    out = []
+    zero = []
+    for name, record in shared["students"].items():
+        for task, fractions in record["zero_fraction"].items():
+            zero.append(f"{name} {task}: " + " / ".join(fmt(f, 2) for f in fractions.values()))
+    out += ["Share of zero activations per layer (layer 1 / 2 / ...): " + "; ".join(zero) + ".", ""]
+    dormant = [f"{name} {task}: " + " / ".join(f"{fmt(shares['0.0'], 2)}, {fmt(shares['0.1'], 2)}"
+                                                for shares in layers.values())
+               for name, record in shared["students"].items() for task, layers in record.get("dormant", {}).items()]
+    if dormant:
+        out += ["Dead and dormant neurons on the task's own states under its own id (Sokar et al. 2023: "
+                "E|h_k| / mean_l E|h_l| <= tau; per layer: tau = 0 (dead), tau = 0.1): " + "; ".join(dormant) + ".",
+                ""]
+    return out
+
+
 def shared_section(results: StudyResults) -> str:
     out = ["## 7. Shared computation (thesis Table 6.1, Figures 6.3 and 6.4b)", ""]
     if results.shared is None:
@@ -437,13 +464,14 @@ def shared_section(results: StudyResults) -> str:
                              f"{tau_pair(row, 'average_tau')} (sd {fmt(row['average_tau_a_seed_sd'], 3)} / "
                              f"{fmt(row['average_tau_b_seed_sd'], 3)})",
                              f"{fmt(row['linear_cka'], 3)} (sd {fmt(row['linear_cka_seed_sd'], 3)})",
-                             summary["students"]])
+                             *beyond_cka_cells(row), summary["students"]])
                 ref = summary.get("untrained", {}).get("pairs", {}).get(pair, {}).get(layer)
                 if ref:
                     rows.append([f"{group}, untrained copy", pair, layer.removeprefix("layer"),
                                  f"{fmt(ref['per_state_tau_a']['mean'], 3)} +- {fmt(ref['per_state_tau_a']['sd'], 3)}",
                                  f"{fmt(ref['per_state_tau_b']['mean'], 3)} +- {fmt(ref['per_state_tau_b']['sd'], 3)}",
-                                 tau_pair(ref, "average_tau"), fmt(ref["linear_cka"], 3), "-"])
+                                 tau_pair(ref, "average_tau"), fmt(ref["linear_cka"], 3), *beyond_cka_cells(ref),
+                                 "-"])
     out += [f"Each student acted online for {shared['episodes_per_task']} episodes per task; its post-ReLU "
             "activations on the visited states are compared across task ids. Per state: Kendall's tau between a "
             "state's activations under the two task ids, mean +- sd over states (s ~ D_i u D_j), averaged over the "
@@ -455,12 +483,15 @@ def shared_section(results: StudyResults) -> str:
             "of the same shape on the same states (the group's first student's), the level a number should be "
             "read against.", "",
             table(["student group", "tasks", "layer", "per-state tau-a (mean +- sd)", "per-state tau-b (mean +- sd)",
-                   "average tau-a / tau-b", "linear CKA", "students"], rows), "", f"Ties: {shared['note']}", ""]
-    zero = []
-    for name, record in shared["students"].items():
-        for task, fractions in record["zero_fraction"].items():
-            zero.append(f"{name} {task}: " + " / ".join(fmt(f, 2) for f in fractions.values()))
-    out += ["Share of zero activations per layer (layer 1 / 2 / ...): " + "; ".join(zero) + ".", ""]
+                   "average tau-a / tau-b", "linear CKA", "Procrustes", "debiased CKA",
+                   "task selectivity: mean / share >= 0.5", "students"], rows), "",
+            "Beyond CKA (linear CKA is saturated: near 1 for trained students and their untrained copies alike): "
+            "orthogonal Procrustes similarity of the centred, normalised activation matrices under the two ids; "
+            "CKA from the unbiased HSIC estimator (debiased CKA, Nguyen et al. 2021: plain CKA is inflated when "
+            "the width is large against the states); per neuron, the share of its activation variance over "
+            "(state, id) that the task id explains, averaged over the neurons that vary, and the share of all "
+            "neurons it explains at least half of (mop_core/similarity.py).", "", f"Ties: {shared['note']}", ""]
+    out += activity_lines(shared)
     for group, path in results.figures.get("sorted_activations", {}).items():
         out += [f"![{group}]({path})", "",
                 f"Figure 6.3b for {group}: neurons sorted by the first task's mean activation; an increasing "

@@ -13,6 +13,10 @@
    Both Kendall variants are recorded: tau-a (the thesis's formula and the reference code's, so
    Table 6.1/6.2 stay comparable) and tau-b (corrects for ties: ReLU zeros tie many neurons).
    ``zero_fraction`` records how many activations are exactly zero, i.e. how much the two differ.
+   - *beyond CKA* (issue 17; linear CKA is 0.94-1.0 for every student and its untrained copy here):
+     orthogonal Procrustes similarity, debiased CKA, per-neuron task selectivity (mean, and the
+     share of neurons the id explains >= half of), and per task the dead / dormant share of each
+     layer (mop_core.similarity).
 3. :func:`summarise_students`: a group of students trained with different seeds -> mean and
    standard deviation over seeds of every figure (Table 6.1 rows).
 4. :func:`untrained_like`: the same measures for an untrained network of the student's shape on
@@ -34,6 +38,7 @@ import torch
 from mop_core.config import from_mapping, require
 from mop_core.rollout import collect_episodes
 from mop_core.runtime import derive_seeds, parallel_map
+from mop_core.similarity import debiased_cka, dormant_shares, procrustes_similarity, task_selectivity
 from mop_core.structure import (
     TAU_VARIANTS,
     average_comparison,
@@ -145,6 +150,7 @@ def measure_student(student, tasks: Sequence[str], states: Sequence[torch.Tensor
             under_i = torch.cat([own[i][layer], hidden_activations(student, states[j], i)[layer]])
             under_j = torch.cat([hidden_activations(student, states[i], j)[layer], own[j][layer]])
             row["linear_cka"] = linear_cka(under_i, under_j)
+            row |= beyond_cka(under_i, under_j)
             rows[layer_key(layer)] = row
         pairs[f"{tasks[i]}-{tasks[j]}"] = rows
     return {
@@ -153,8 +159,26 @@ def measure_student(student, tasks: Sequence[str], states: Sequence[torch.Tensor
         "pairs": pairs,
         "zero_fraction": {task: {layer_key(k): float((acts == 0).double().mean()) for k, acts in enumerate(own[i])}
                           for i, task in enumerate(tasks)},
+        "dormant": {task: {layer_key(k): dormant_shares(acts) for k, acts in enumerate(own[i])}
+                    for i, task in enumerate(tasks)},
         "mean_activations": {task: [acts.mean(0).tolist() for acts in own[i]] for i, task in enumerate(tasks)},
     }
+
+
+BEYOND_CKA = ("procrustes", "debiased_cka", "selectivity_mean", "selective_share")
+SELECTIVE = 0.5  # a neuron is task-selective when the task id explains at least half its variance
+
+
+def beyond_cka(under_i: torch.Tensor, under_j: torch.Tensor) -> dict[str, float]:
+    """The measures that can tell students apart where linear CKA saturates (mop_core.similarity),
+    on a layer's activations over the same states under ids i and j: orthogonal Procrustes
+    similarity, debiased CKA, the mean task selectivity of the neurons that vary and the share of
+    all neurons the task id explains at least half of (``SELECTIVE``)."""
+    eta = task_selectivity([under_i, under_j])
+    varying = eta[~torch.isnan(eta)]
+    return {"procrustes": procrustes_similarity(under_i, under_j), "debiased_cka": debiased_cka(under_i, under_j),
+            "selectivity_mean": float(varying.mean()) if len(varying) else float("nan"),
+            "selective_share": float((varying >= SELECTIVE).double().sum() / len(eta))}
 
 
 def untrained_like(student, seed: int):
@@ -182,12 +206,13 @@ def summarise_students(records: Sequence[dict]) -> dict:
                 key = f"per_state_tau_{variant}"
                 values[f"{key}_mean"] = [e[key]["mean"] for e in entries]
                 values[f"{key}_sd"] = [e[key]["sd"] for e in entries]
-            for key in ("average_tau_a", "average_tau_b", "linear_cka"):
-                values[key] = [e[key] for e in entries]
+            for key in ("average_tau_a", "average_tau_b", "linear_cka", *BEYOND_CKA):
+                values[key] = [e[key] for e in entries if key in e]
             row: dict = {}
             for key, vals in values.items():
-                row[key] = float(np.mean(vals))
-                row[f"{key}_seed_sd"] = float(np.std(vals))
+                if vals:
+                    row[key] = float(np.mean(vals))
+                    row[f"{key}_seed_sd"] = float(np.std(vals))
             out[layer] = row
         summary["pairs"][pair] = out
     return summary

@@ -60,14 +60,18 @@ def _full_results() -> StudyResults:
                                            "walk": {"stand": 286.6, "walk": 205.1}}}
     layer = {"per_state_tau_a_mean": 0.452, "per_state_tau_a_sd": 0.101, "per_state_tau_b_mean": 0.617,
              "per_state_tau_b_sd": 0.139, "average_tau_a": -0.011, "average_tau_a_seed_sd": 0.005,
-             "average_tau_b": -0.016, "average_tau_b_seed_sd": 0.007, "linear_cka": 0.996, "linear_cka_seed_sd": 0.0}
+             "average_tau_b": -0.016, "average_tau_b_seed_sd": 0.007, "linear_cka": 0.996, "linear_cka_seed_sd": 0.0,
+             "procrustes": 0.812, "procrustes_seed_sd": 0.011, "debiased_cka": 0.934, "debiased_cka_seed_sd": 0.02,
+             "selectivity_mean": 0.081, "selectivity_mean_seed_sd": 0.01, "selective_share": 0.047,
+             "selective_share_seed_sd": 0.003}
     shared = {"note": "tau-b corrects for ties", "episodes_per_task": 10,
               "groups": {"mse_medium": {"students": 2, "pairs": {"stand-walk": {"layer1": layer}},
                                         "untrained": {"pairs": {"stand-walk": {"layer1": {
                                             "per_state_tau_a": {"mean": 0.701, "sd": 0.04},
                                             "per_state_tau_b": {"mean": 0.811, "sd": 0.05}, "average_tau_a": 0.15,
                                             "average_tau_b": 0.2, "linear_cka": 0.999}}}}}},
-              "students": {"mse-medium-0": {"zero_fraction": {"stand": {"layer1": 0.53}, "walk": {"layer1": 0.5}}}}}
+              "students": {"mse-medium-0": {"zero_fraction": {"stand": {"layer1": 0.53}, "walk": {"layer1": 0.5}},
+                                            "dormant": {"stand": {"layer1": {"0.0": 0.02, "0.1": 0.125}}}}}}
     return StudyResults(
         tasks=TASKS, levels=["medium"], settings={"summary": "tiny", "snapshot_eval_episodes": 10, "teacher_seed": 0},
         collect={t: {"medium_gradient_steps": 35000, "medium_return": 336.4, "expert_gradient_steps": 90000,
@@ -86,8 +90,11 @@ def test_report_shows_the_runs_numbers_in_thesis_order_and_draws_the_figures_it_
     assert "40.5 [39.5, 41.5]" in markdown  # the teacher's normalised score
     assert "0.452 +- 0.101" in markdown and "0.617 +- 0.139" in markdown and "0.996" in markdown  # Table 6.1
     assert "-0.011 / -0.016" in markdown  # average tau-a / tau-b
+    # an untrained copy measured before the measures beyond CKA existed: n/a, not an error
     assert "| mse_medium, untrained copy | stand-walk | 1 | 0.701 +- 0.040 | 0.811 +- 0.050 | 0.150 / 0.200 | " \
-           "0.999 | - |" in markdown
+           "0.999 | n/a | n/a | n/a / n/a | - |" in markdown
+    assert "| 0.812 (sd 0.011) | 0.934 (sd 0.020) | 0.081 / 0.047 | 2 |" in markdown  # Procrustes, debiased CKA, eta^2
+    assert "mse-medium-0 stand: 0.02, 0.12" in markdown  # dead, dormant share
     assert "| medium | walk teacher | 286.6 | 205.1 |" in markdown  # Table 6.3 row
     assert "the walk teacher (205.1)" in markdown
     assert "1.05" in markdown  # student / teacher = 426.1 / 404.55
