@@ -4,6 +4,7 @@ pool and the process settings for compute."""
 from __future__ import annotations
 
 import os
+import platform
 import sys
 import zlib
 
@@ -122,3 +123,17 @@ def test_configure_compute_pins_the_threads_and_keeps_freed_memory(monkeypatch):
     assert pinned == [2] and kept == [True]
     monkeypatch.undo()
     assert runtime.keep_freed_memory() is True  # glibc accepted the raised mmap threshold
+
+
+@pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64"),
+                    reason="flush-to-zero is an x86 (SSE3) CPU setting")
+def test_configure_compute_flushes_subnormal_floats(monkeypatch):
+    monkeypatch.setattr(runtime, "set_threads", lambda threads: None)
+    try:
+        torch.set_flush_denormal(False)
+        subnormal = torch.tensor([1e-40], dtype=torch.float32)
+        assert (subnormal * 1.0).item() != 0.0  # representable as a subnormal when not flushed
+        runtime.configure_compute(1)
+        assert (subnormal * 1.0).item() == 0.0  # flushed: no slow subnormal arithmetic
+    finally:
+        torch.set_flush_denormal(False)
