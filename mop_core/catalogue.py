@@ -13,7 +13,7 @@ from __future__ import annotations
 import itertools
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 from mop_core.artifacts import file_sha256
 from mop_core.config import InputFileError
@@ -100,8 +100,9 @@ class Catalogue:
         return [TeacherRun(task, level, "deterministic", self.teacher_seed) for level in self.levels
                 for task in self.tasks]
 
-    def eval_jobs(self, sample_gaussian_students: bool = False) -> list[Job]:
-        """Every policy on the tasks it was trained for, and the cross-task teachers on the others."""
+    def eval_jobs(self, sample_gaussian_students: bool = False, transfer_tasks: Sequence[str] = ()) -> list[Job]:
+        """Every policy on the tasks it was trained for, and the cross-task teachers on the other study
+        tasks and on ``transfer_tasks`` (tasks no policy trains on)."""
         jobs = []
         cross = {(t.task, t.level): t for t in self.cross_task_teachers()}
         for task in self.tasks:
@@ -111,7 +112,7 @@ class Catalogue:
                          if t.task == task and t.level == level]
                 if (task, level) in cross:
                     jobs += [Job(cross_group(level, task), self.teacher_seed, cross[task, level].paths.checkpoint,
-                                 other) for other in self.tasks if other != task]
+                                 other) for other in (*self.tasks, *transfer_tasks) if other != task]
         for run in self.multitask:
             jobs += [Job(run.group, run.seed, run.paths.checkpoint, task, task) for task in run.tasks]
         for run in self.students:

@@ -60,7 +60,7 @@ class Step:
     """The result of one control step: everything a dataset row needs about the next state."""
 
     observation: np.ndarray  # [24] float64
-    reward: float  # dm_control's own task reward
+    reward: float  # dm_control's own task reward (times dm_control's tolerance of the speed: stand_still)
     timeout: bool  # the episode ended by its time limit
     physics: np.ndarray  # [18] float64 qpos+qvel after the step
     features: np.ndarray  # [3] float64 reward features after the step
@@ -112,7 +112,7 @@ class WalkerEnv:
         self._t += 1
         return Step(
             observation=flatten_observation(timestep.observation),
-            reward=float(timestep.reward),
+            reward=direct_reward(self.task, float(timestep.reward), self._env.physics),
             timeout=self._t >= self.episode_length,
             physics=self._env.physics.get_state().copy(),
             features=read_reward_features(self._env.physics),
@@ -289,6 +289,20 @@ class VectorWalkerEnv:
                           timeout=np.full(k, self._t >= self.episode_length), physics=physics, features=features)
 
 
+def direct_reward(task: WalkerTask, dm_reward: float, physics) -> float:
+    """The reward of ``task`` computed directly on ``physics``: ``dm_reward`` (dm_control's
+    ``get_reward`` of ``task.dm_control_task``) times, for a task with a stillness penalty,
+    dm_control's own ``rewards.tolerance`` of the horizontal velocity (the reference the vectorised
+    :meth:`WalkerTask.reward` is tested against)."""
+    if task.stillness is None:
+        return dm_reward
+    from dm_control.utils import rewards
+
+    factor = rewards.tolerance(physics.horizontal_velocity(), bounds=(0.0, 0.0), margin=task.stillness.margin,
+                               sigmoid=task.stillness.form, value_at_margin=0.1)
+    return dm_reward * float(factor)
+
+
 def physics_replay_rewards(physics_states: np.ndarray, tasks: Sequence[str | WalkerTask]) -> dict[str, np.ndarray]:
     """Rewards by physics replay: set each state, run MuJoCo's forward pass, ask dm_control.
 
@@ -299,10 +313,11 @@ def physics_replay_rewards(physics_states: np.ndarray, tasks: Sequence[str | Wal
     env = WalkerEnv(tasks[0], seed=0)
     physics = env.physics
     dm_tasks = {task.name: WalkerEnv(task, seed=0).dm_env.task for task in tasks}
+    by_name = {task.name: task for task in tasks}
     out = {task.name: np.empty(len(physics_states), dtype=np.float64) for task in tasks}
     for i, state in enumerate(np.asarray(physics_states, dtype=np.float64)):
         physics.set_state(state)
         physics.forward()
         for name, dm_task in dm_tasks.items():
-            out[name][i] = dm_task.get_reward(physics)
+            out[name][i] = direct_reward(by_name[name], dm_task.get_reward(physics), physics)
     return out

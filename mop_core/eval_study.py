@@ -67,17 +67,21 @@ def normalisers(tasks, collect_metrics: Path) -> dict[str, dict]:
 def evaluate_study(catalogue: Catalogue, config: EvalConfig, episode_length: int, norms: dict,
                    progress: bool = False) -> StudyEvaluation:
     """Roll out every job of the catalogue (the same episode seeds for all) and summarise per group."""
-    jobs = catalogue.eval_jobs(config.gaussian_student_action == "sample")
+    jobs = catalogue.eval_jobs(config.gaussian_student_action == "sample", config.transfer_tasks)
     started = time.perf_counter()
     results = run_jobs(jobs, episode_seeds(catalogue.study_seed, config), episode_length, config, progress)
     seconds = time.perf_counter() - started
     returns: dict = defaultdict(lambda: defaultdict(dict))
     scores: dict = defaultdict(lambda: defaultdict(dict))
     for job, r in zip(jobs, results):
-        n = norms[job.eval_task]
         returns[job.eval_task][job.group][job.train_seed] = r
-        scores[job.group][job.eval_task][job.train_seed] = normalised_score(r, n["random_return"], n["expert_return"])
-    summary = {task: {group: summarise_group(per_seed, norms[task]["random_return"], norms[task]["expert_return"])
+        if job.eval_task in norms:  # a transfer task has no measured R_random: returns only
+            n = norms[job.eval_task]
+            scores[job.group][job.eval_task][job.train_seed] = normalised_score(r, n["random_return"],
+                                                                                n["expert_return"])
+    none: dict = {}
+    summary = {task: {group: summarise_group(per_seed, norms.get(task, none).get("random_return"),
+                                             norms.get(task, none).get("expert_return"))
                       for group, per_seed in groups.items()} for task, groups in returns.items()}
     return StudyEvaluation(returns, scores, summary, len(jobs), seconds,
                            sum(r.size for r in results) * episode_length)
@@ -121,16 +125,19 @@ def aggregates(scores: dict, catalogue: Catalogue, config: EvalConfig) -> dict:
             "note": AGGREGATE_NOTE.format(reps=reps)}
 
 
-def cross_task_table(summary: dict, catalogue: Catalogue) -> dict:
-    """``[level][teacher task][evaluation task]``: mean return of task i's deterministic teacher (seed
-    ``teacher_seed``) on task j's reward."""
+def cross_task_table(summary: dict, catalogue: Catalogue, transfer_tasks: tuple[str, ...] = ()) -> dict:
+    """``[level][teacher task][evaluation task]``: the return of task i's deterministic teacher (seed
+    ``teacher_seed``) on task j's reward, j over the study's tasks and then ``transfer_tasks``: its
+    mean and 95% interval over that one run's episodes (``ci_unit`` episode, ``n``)."""
     table: dict = {}
     seed = str(catalogue.teacher_seed)
     for teacher in catalogue.cross_task_teachers():
         group = teacher_group(teacher.level, "deterministic")
-        table.setdefault(teacher.level, {})[teacher.task] = {
-            target: summary[target][group]["seed_means"][seed] if target == teacher.task
-            else summary[target][cross_group(teacher.level, teacher.task)]["mean"] for target in catalogue.tasks}
+        row = table.setdefault(teacher.level, {}).setdefault(teacher.task, {})
+        for target in (*catalogue.tasks, *transfer_tasks):
+            entry = summary[target][group if target == teacher.task else cross_group(teacher.level, teacher.task)]
+            run = entry["runs"][seed] if "runs" in entry else entry  # the teacher_seed run's own episodes
+            row[target] = {key: run[key] for key in ("mean", "ci_low", "ci_high", "n", "ci_unit")}
     return table
 
 
@@ -144,7 +151,7 @@ def eval_metrics(evaluation: StudyEvaluation, catalogue: Catalogue, config: Eval
         metrics[task] = entry | ratio_entries(summary, references, task)
     metrics["normalisation"] = norms
     metrics["aggregate"] = aggregates(evaluation.scores, catalogue, config)
-    metrics["cross_task"] = cross_task_table(summary, catalogue)
+    metrics["cross_task"] = cross_task_table(summary, catalogue, config.transfer_tasks)
     metrics["eval"] = {"jobs": evaluation.jobs, "episodes_per_job": config.episodes,
                        "gaussian_student_action": config.gaussian_student_action}
     return metrics

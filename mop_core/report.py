@@ -298,7 +298,44 @@ def multitask_section(results: StudyResults, figure_dir: Path, link_prefix: str)
                    "multi-task normalised", "teacher normalised", "multi / single"], rows), "",
             ci_caption([eval_entry(results, r[0], multitask_group(r[1])) for r in rows]
                        + [eval_entry(results, r[0], teacher_group(r[1], "deterministic")) for r in rows]) + ".", ""]
-    return "\n".join(out)
+    return "\n".join(out + conflict_lines(results, figure_dir, link_prefix))
+
+
+def conflict_lines(results: StudyResults, figure_dir: Path, link_prefix: str) -> list[str]:
+    """Thesis 5.1.2's explanation of naive multi-task failure as a number: the cosine between the
+    tasks' gradients on the shared weights (mop_core/conflict.py) during training, per task pair."""
+    families = [(f"multi-task actor, {level}", runs)
+                for (level,), runs in group_runs(results.multitask, "level").items()]
+    families += [(f"{loss} students, {pairing}", runs)
+                 for (loss, pairing), runs in group_runs(results.students, "loss", "pairing").items()]
+    pairs = sorted({key[len("grad_cosine_"):] for _, runs in families for run in runs for row in run.curve[:1]
+                    for key in row if key.startswith("grad_cosine_")})
+    if not pairs:
+        return []
+    panels: dict = {pair: {} for pair in pairs}
+    rows, drawn = [], []
+    for label, runs in families:
+        for pair in pairs:
+            band = seed_band([r.curve for r in runs], f"grad_cosine_{pair}")
+            if not band:
+                continue
+            panels[pair][f"{label} ({seeds_text(len(runs))})"] = band
+            drawn.append(runs)
+            finals = [float(r.curve[-1][f"grad_cosine_{pair}"]) for r in runs]
+            ci = confidence_interval(finals) if len(finals) >= MIN_SEEDS_FOR_SEED_CI else None
+            final = (f"{fmt(ci['mean'], 3)} [{fmt(ci['ci_low'], 3)}, {fmt(ci['ci_high'], 3)}] (n={len(finals)} seeds)"
+                     if ci else f"{fmt(sum(finals) / len(finals), 3)} ({seeds_text(len(finals))})")
+            rows.append([label, pair, fmt(min(band["mean"]), 3), final])
+    name = "gradient_conflict.png"
+    band_curves(figure_dir / name, panels, {}, "cos(g_i, g_k)", "gradient conflict on the shared weights")
+    return ["### Gradient conflict (thesis 5.1.2 as a number)", "",
+            f"![gradient conflict]({link_prefix}{name})", "",
+            f"{curve_caption(drawn)}. Cosine between task i's and task k's gradients on the weights the tasks "
+            "share (PCGrad's conflict measure, Yu et al. 2020; mop_core/conflict.py), on a fresh batch of each "
+            "task's states at every evaluation: the multi-task baseline's shared actor (each task's actor objective "
+            "under its own critic), and the students' whole network (each task's distillation loss; the ranking "
+            "regulariser left out). Below 0: a step for one task undoes part of the other's.", "",
+            table(["model", "task pair", "lowest mean cosine", "final cosine [95% CI over seeds]"], rows), ""]
 
 
 def teacher_run(results: StudyResults, task: str, group: str) -> dict | None:
@@ -525,19 +562,31 @@ def cross_task_section(results: StudyResults) -> str:
     if not cross:
         return "\n".join(out + [not_run("cross-task evaluation", "It needs deterministic teachers and the eval "
                                         "stage (`dvc repro eval`)."), ""])
-    rows = []
+    targets = list(next(iter(next(iter(cross.values())).values())))
+    rows, best = [], []
     for level, by_teacher in cross.items():
         for teacher, by_task in by_teacher.items():
-            rows.append([level, f"{teacher} teacher"] + [fmt(by_task[t]) for t in results.tasks])
-    best = []
-    for level, by_teacher in cross.items():
-        for task in results.tasks:
-            winner = max(by_teacher, key=lambda t: by_teacher[t][task])
-            best.append(f"{level} {task}: the {winner} teacher ({fmt(by_teacher[winner][task])})")
-    out += [table(["level", "policy"] + [f"return on {t}" for t in results.tasks], rows), "",
-            "Mean eval return of each task's deterministic teacher under every task's reward (same episode seeds "
-            "as section 2). Best per task: " + "; ".join(best) + ".", ""]
+            rows.append([level, f"{teacher} teacher"] + [fmt_ci(by_task[t]) for t in targets])
+        for task in targets:
+            winner = max(by_teacher, key=lambda t: by_teacher[t][task]["mean"])
+            best.append(f"{level} {task}: the {winner} teacher ({fmt(by_teacher[winner][task]['mean'])})")
+    transfer = [t for t in targets if t not in results.tasks]
+    out += [table(["level", "policy"] + [f"return on {t}" for t in targets], rows), "",
+            "Mean eval return [95% CI over the episodes of one teacher run] of each task's deterministic "
+            "teacher under every task's reward (same episode seeds as section 2). Best per task: "
+            + "; ".join(best) + ".", ""]
+    if transfer:
+        out += [f"{', '.join(transfer)}: evaluation only (`eval.transfer_tasks`), no policy trains on it. "
+                + " ".join(TRANSFER_NOTES.get(t, "") for t in transfer), ""]
     return "\n".join(out)
+
+
+TRANSFER_NOTES = {
+    "stand_still": "stand_still = stand x tol(|horizontal velocity|; bounds 0, margin 0.5 m/s, gaussian, 0.1) "
+                   "(mop_core/tasks.py): dm_control's stand does not forbid moving, so walking upright earns the "
+                   "full stand reward (the thesis's explanation of Table 6.3, 6.4.5); under stand_still a teacher "
+                   "that walks at 1 m/s keeps 1e-4 of it.",
+}
 
 
 def render_report(results: StudyResults, figure_dir: Path, link_prefix: str,

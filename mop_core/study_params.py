@@ -87,5 +87,8 @@ def check_params(params: Mapping[str, Any], where: str = "params.yaml") -> None:
         for variant in variants:
             variant_config(distill_config(params, "mse"), variant)
     check_batch_sizes(params, study, collect)
-    typed_section(params, "eval", EvalConfig)
+    evaluation = typed_section(params, "eval", EvalConfig)
+    for i, task in enumerate(evaluation.transfer_tasks):
+        require(task not in study.tasks, f"eval.transfer_tasks[{i}]", "a task outside study.tasks (the study's "
+                "own tasks are evaluated already)", task)
     shared_computation_config(params)

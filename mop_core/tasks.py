@@ -14,6 +14,20 @@ horizontal centre-of-mass velocity of the torso subtree (sensor ``torso_subtreel
 ``qvel[0]``). These three *reward features* are stored with every transition, so the reward of
 any transition under any task (D_{j->i} of thesis chapter 6.4) is this formula evaluated on arrays.
 A new task is a new :class:`WalkerTask` entry in :data:`TASKS`; nothing else branches on names.
+
+dm_control's stand does not forbid moving: a walker that walks upright earns the full stand reward,
+and the walk teacher beats the stand teacher at standing (thesis Table 6.3, 6.4.5), so stand and
+walk cannot show negative transfer. The thesis recommends a movement penalty (7.3); ``stand_still``
+is that task (not in dm_control)::
+
+    stand_still = stand * tol(x; bounds=(0, 0), margin=m, form, value_at_margin=0.1)
+
+a factor 1 at rest that decays with the horizontal speed |x| to 0.1 at |x| = m (``form`` gaussian:
+``exp(-(|x|/m)^2 ln 10)``; linear: ``max(0, 1 - 0.9 |x|/m)``). Its registry entry sets m = 0.5 m/s
+and the gaussian form: a walker at walk's target speed 1 m/s keeps 1e-4 of its stand reward, one
+swaying at 0.1 m/s 0.91. Form and margin are fields of the task's :class:`Stillness`, not
+params.yaml keys: they define the reward, so a different value is a different task (a new registry
+entry with its own name), never the same name silently relabelled differently.
 """
 
 from __future__ import annotations
@@ -45,6 +59,34 @@ def _lower_bound_linear(x: np.ndarray, lower: float, margin: float) -> np.ndarra
     return np.where(x >= lower, 1.0, np.where(np.abs(scaled) < 1.0, 1.0 - scaled, 0.0))
 
 
+STILLNESS_FORMS = ("gaussian", "linear")
+_STILL_VALUE_AT_MARGIN = 0.1
+
+
+@dataclass(frozen=True)
+class Stillness:
+    """The movement penalty of a stand-still task: ``tol(x; bounds=(0, 0), margin, form, 0.1)``,
+    dm_control's ``rewards.tolerance`` of the horizontal velocity ``x`` (1 at rest, 0.1 at
+    ``|x| = margin``)."""
+
+    margin: float  # m/s: the horizontal speed at which the factor has decayed to 0.1
+    form: str = "gaussian"  # gaussian | linear (dm_control's sigmoid names)
+
+    def __post_init__(self) -> None:
+        if self.form not in STILLNESS_FORMS:
+            raise ValueError(f"stillness form: expected one of {STILLNESS_FORMS}, got {self.form!r}")
+        if not self.margin > 0:
+            raise ValueError(f"stillness margin: expected a positive speed (m/s), got {self.margin!r}")
+
+    def factor(self, velocity: np.ndarray) -> np.ndarray:
+        """The factor of each horizontal velocity (float64)."""
+        d = np.abs(np.asarray(velocity, dtype=np.float64)) / self.margin
+        if self.form == "gaussian":
+            return np.exp(-0.5 * (d * np.sqrt(-2.0 * np.log(_STILL_VALUE_AT_MARGIN))) ** 2)
+        scaled = d * (1.0 - _STILL_VALUE_AT_MARGIN)
+        return np.where(scaled < 1.0, 1.0 - scaled, 0.0)
+
+
 @dataclass(frozen=True)
 class WalkerTask:
     """A walker reward function.
@@ -53,16 +95,24 @@ class WalkerTask:
         name: the task's name in the study (``stand``, ``walk``, ``run``).
         move_speed: target horizontal speed ``v`` in m/s; 0 means the pure stand reward.
         dm_control_task: the dm_control suite task with this reward (used to build envs and to
-            check rewards against dm_control's own ``get_reward``).
+            check rewards against dm_control's own ``get_reward``); for a task with a ``stillness``
+            penalty, the task whose reward the penalty multiplies.
         expert_return: the published expert return of this task (UTDS's ``task.json``, the
             reference of D4RL-style normalised scores ``100 (R - R_random) / (R_expert - R_random)``;
-            R_random is measured by the collect stage).
+            R_random is measured by the collect stage). stand_still has none published: it takes
+            stand's (the factor is at most 1; a walker standing perfectly still scores its stand return).
+        stillness: the movement penalty multiplying the reward (None: dm_control's reward as is).
     """
 
     name: str
     move_speed: float
     dm_control_task: str
     expert_return: float
+    stillness: Stillness | None = None
+
+    def __post_init__(self) -> None:
+        if self.stillness is not None and self.move_speed != 0:
+            raise ValueError(f"task {self.name!r}: a stillness penalty needs move_speed 0, got {self.move_speed}")
 
     def reward(self, features: np.ndarray) -> np.ndarray:
         """Reward of each row of ``features [..., 3]`` (columns :data:`REWARD_FEATURES`), float64."""
@@ -74,7 +124,7 @@ class WalkerTask:
         standing = _lower_bound_gaussian(height, _STAND_HEIGHT, _STAND_HEIGHT / 2)
         stand_reward = (3 * standing + (1 + upright) / 2) / 4
         if self.move_speed == 0:
-            return stand_reward
+            return stand_reward if self.stillness is None else stand_reward * self.stillness.factor(velocity)
         move_reward = _lower_bound_linear(velocity, self.move_speed, self.move_speed / 2)
         return stand_reward * (5 * move_reward + 1) / 6
 
@@ -85,6 +135,7 @@ TASKS: dict[str, WalkerTask] = {
         WalkerTask("stand", 0.0, "stand", expert_return=986.8),
         WalkerTask("walk", 1.0, "walk", expert_return=980.0),
         WalkerTask("run", 8.0, "run", expert_return=842.6),
+        WalkerTask("stand_still", 0.0, "stand", expert_return=986.8, stillness=Stillness(margin=0.5)),
     )
 }
 

@@ -96,7 +96,7 @@ def check_batch_fits(config: TeacherConfig, summary: dict) -> None:
 
 def run_seeds(study_seed: int, name: Sequence[str], seed: int) -> dict[str, int]:
     """Seeds of one run, a function of (study seed, what it trains on, run seed) only."""
-    return derive_seeds([study_seed, *name, seed], ("agent", "sampler", "eval", "final_eval"))
+    return derive_seeds([study_seed, *name, seed], ("agent", "sampler", "eval", "final_eval", "conflict"))
 
 
 @dataclass(frozen=True)
@@ -246,6 +246,9 @@ def train_multitask(tasks: Sequence[str], sources: Sequence[DataSource], config:
                                                      sched.rollout_envs))
             row |= {f"{key}_{task}": value for key, value in stats.items()}
         row["return_mean"] = float(np.mean([row[f"return_mean_{task}"] for task in tasks]))
+        if len(tasks) > 1:  # the shared actor's gradient conflict, on batches of a stream of their own per step
+            draws = torch.Generator(device).manual_seed(seeds["conflict"] + agent.updates)
+            row |= agent.gradient_cosines([data.sample(config.pbrl.batch_size, draws) for data, _ in loaded], draws)
         return row
 
     fingerprint = run_fingerprint({"tasks": tasks, "config": to_dict(config), "seed": seed, "study_seed": study_seed,

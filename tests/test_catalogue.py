@@ -201,6 +201,16 @@ def test_the_teacher_seed_students_learn_from(tiny_params):
     assert all(j.train_seed == 1 for j in cross)
 
 
+def test_transfer_tasks_add_cross_task_jobs_only(tiny_params):
+    catalogue = build_catalogue(tiny_params)
+    plain = catalogue.eval_jobs()
+    jobs = catalogue.eval_jobs(transfer_tasks=("stand_still",))
+    added = [j for j in jobs if j not in plain]
+    assert [(j.group, j.eval_task) for j in added] == [("cross_medium_stand", "stand_still"),
+                                                      ("cross_medium_walk", "stand_still")]
+    assert [j.checkpoint.name for j in added] == ["stand-medium-deterministic-0.pt", "walk-medium-deterministic-0.pt"]
+
+
 def test_no_cross_task_jobs_without_deterministic_teachers(tiny_params):
     params = _with(tiny_params, train_teachers={"actors": ["gaussian"]}, distill={"losses": ["kl"]},
                    common_structure={"widths": [], "ranking_losses": []})

@@ -259,6 +259,48 @@ def test_a_group_of_runs_equals_the_runs_trained_alone(loss, step_per_task, devi
         assert float(metrics[f"loss@{r}"]) == pytest.approx(float(single[r]["loss@0"]), rel=1e-4, abs=1e-6)
 
 
+def test_gradient_cosines_equal_each_runs_own_per_task_gradients_and_leave_training_unchanged():
+    """PCGrad's conflict measure: per run, the cosine of the two tasks' loss gradients over every
+    student weight, as a lone student computes it; measuring draws from its own generator."""
+    config = DistillConfig(loss="mse", student=TINY, batch_size=8, learning_rate=3e-3)
+    targets = [_targets(2, gaussian=False, seed=run) for run in range(2)]
+    group = Distiller(config, targets, 24, 6, seeds=[4, 7], total_steps=10)
+    twin = Distiller(config, targets, 24, 6, seeds=[4, 7], total_steps=10)
+    for _ in range(5):
+        group.update(), twin.update()
+    cosines = group.gradient_cosines(torch.Generator().manual_seed(3))
+    draws = torch.Generator().manual_seed(3)  # the same draws, in the same order (task 0 then 1, runs in order)
+    rows = [[torch.randint(64, (8,), generator=draws) for _ in range(2)] for _ in range(2)]
+    for r in range(2):
+        student = group.student(r)
+        grads = []
+        for t in range(2):
+            obs = targets[r][t].states[rows[t][r]]
+            student.zero_grad()
+            mse_per_state(student(obs, t), targets[r][t].teacher_actions[rows[t][r]]).mean().backward()
+            grads.append(torch.cat([p.grad.flatten() for p in student.parameters()]))
+        expected = float(torch.nn.functional.cosine_similarity(grads[0], grads[1], dim=0))
+        assert cosines[r]["grad_cosine_task0-task1"] == pytest.approx(expected, abs=1e-5)
+        assert cosines[r]["grad_cosine"] == cosines[r]["grad_cosine_task0-task1"]
+    group.update(), twin.update()
+    for x, y in zip(group.group.state_dict().values(), twin.group.state_dict().values()):
+        assert torch.equal(x, y)
+
+
+def test_opposite_teachers_on_the_same_states_give_conflicting_gradients():
+    """Two tasks whose teachers act oppositely on the same states: their gradients point apart (cosine
+    < 0); two tasks with the same teacher: they agree (cosine > 0)."""
+    config = DistillConfig(loss="mse", student=TINY, batch_size=32)
+    base = _targets(1, gaussian=False)[0]
+    states = base.states
+    same = TaskStates("b", states, base.teacher_actions, None, base.source)
+    opposite = TaskStates("b", states, -base.teacher_actions, None, base.source)
+    for other, sign in ((opposite, -1), (same, 1)):
+        distiller = Distiller(config, [[base, other]], 24, 6, seeds=[0])
+        cosine = distiller.gradient_cosines(torch.Generator().manual_seed(0))[0]["grad_cosine"]
+        assert sign * cosine > 0.3
+
+
 def test_distill_students_as_a_group_writes_each_runs_files_like_separate_runs(tiny_teachers, tmp_path):
     sources = _sources(tiny_teachers, "deterministic")
     config = DistillConfig(student=TINY, learning_rate=1e-3, batch_size=16)
@@ -325,7 +367,8 @@ def test_distill_run_writes_student_metrics_and_curve(tiny_teachers, tmp_path, l
         teacher = load_teacher(_sources(tiny_teachers, actor).teachers[("stand", "walk").index(task)])
         assert metrics[task]["teacher_return_mean"] == teacher.metrics["return_mean"]
     header, *rows = (tmp_path / "curve.tsv").read_text().splitlines()
-    assert {"return_mean_stand", "return_mean_walk", "loss_stand", "loss_walk"} <= set(header.split("\t"))
+    assert {"return_mean_stand", "return_mean_walk", "loss_stand", "loss_walk", "grad_cosine",
+            "grad_cosine_stand-walk"} <= set(header.split("\t"))  # + the gradient-conflict curve
     assert len(rows) == 2 and not (tmp_path / "resume.pt").exists()
     # the per-state tau curve (thesis 6.3.1): per hidden layer a tau-a and a tau-b column, in [-1, 1] at every
     # evaluation; tau-a <= tau-b in size (ties stay in tau-a's denominator)

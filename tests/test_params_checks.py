@@ -76,6 +76,9 @@ REPEATED = [
     ("train_multitask.levels", ["medium", "medium"], "train_multitask.levels: expected a list without repeats"),
     ("train_multitask.seeds", [1, 1], "train_multitask.seeds: expected a list without repeats"),
     ("train_multitask.levels", ["expert"], "train_multitask.levels[0]: expected one of study.levels"),
+    ("eval.transfer_tasks", ["stand_still", "stand_still"], "eval.transfer_tasks: tasks must not repeat"),
+    ("eval.transfer_tasks", ["walk"], "eval.transfer_tasks[0]: expected a task outside study.tasks"),
+    ("eval.transfer_tasks", ["sit"], "eval.transfer_tasks[0]: unknown task 'sit'"),
 ]
 
 

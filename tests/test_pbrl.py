@@ -3,6 +3,7 @@ schedule, gradients of every loss, seeding, the Gaussian actor and the naive mul
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
@@ -348,6 +349,30 @@ def test_multitask_actor_reads_the_task_id():
         agent.update(_batch(step), agent.next_task)
     obs = torch.randn(5, 24).numpy()
     assert not torch.allclose(torch.as_tensor(agent.act(obs, 0)), torch.as_tensor(agent.act(obs, 1)))
+
+
+@pytest.mark.parametrize("actor", ["deterministic", "gaussian"])
+def test_multitask_gradient_cosines_are_the_cosines_of_each_tasks_actor_gradient(actor):
+    config = dataclasses.replace(CONFIG, actor=actor)
+    agent = MultiTaskPBRL(config, ["stand", "walk", "run"], 24, 6, seed=0)
+    for step in range(6):
+        agent.update(_batch(step), agent.next_task)
+    batches = [_batch(10 + t) for t in range(3)]
+    before = _params(agent.actor)
+    cosines = agent.gradient_cosines(batches, torch.Generator().manual_seed(5))
+    assert not _changed(before, agent.actor)  # measuring takes no step
+    draws = torch.Generator().manual_seed(5)  # the same Gaussian samples, task by task
+    grads = []
+    for t, batch in enumerate(batches):
+        agent.actor.zero_grad()
+        loss, _, _ = actor_objective(agent.actor, batch.observations, with_task_id(batch.observations, t, 3),
+                                     agent.critics[t], agent.temperature.value, draws)
+        loss.backward()
+        grads.append(torch.cat([p.grad.flatten() for p in agent.actor.parameters()]))
+    for (i, a), (k, b) in [((0, "stand"), (1, "walk")), ((0, "stand"), (2, "run")), ((1, "walk"), (2, "run"))]:
+        expected = float(torch.nn.functional.cosine_similarity(grads[i], grads[k], dim=0))
+        assert cosines[f"grad_cosine_{a}-{b}"] == pytest.approx(expected, abs=1e-5)
+    assert cosines["grad_cosine"] == pytest.approx(sum(v for k, v in cosines.items() if k != "grad_cosine") / 3)
 
 
 # ---- what the fast paths must equal -------------------------------------------------------------

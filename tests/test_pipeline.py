@@ -88,7 +88,8 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
         "student_mse-w8_medium_vs_student_mse_medium", "student_mse-rank_pairwise_medium_vs_student_mse_medium"}
     assert all(0 <= a["ci_low"] <= a["value"] <= a["ci_high"] <= 1
                for a in aggregate["probability_of_improvement"].values())
-    assert set(evaluation["cross_task"]["medium"]["stand"]) == {"stand", "walk"}
+    assert set(evaluation["cross_task"]["medium"]["stand"]) == {"stand", "walk", "stand_still"}  # + transfer task
+    assert evaluation["cross_task"]["medium"]["walk"]["stand_still"]["n"] == 3
     for figure in ("returns.png", "student_curves.png"):
         assert (repo / "results" / "eval" / figure).read_bytes()[:4] == b"\x89PNG"
     stages = _run(["dvc", "stage", "list"], repo).stdout

@@ -34,13 +34,15 @@ def _entry(mean: float, n: int = 30, unit: str = "episode", seeds: tuple[int, ..
 def _full_results() -> StudyResults:
     teachers = [Run({"task": t, "level": "medium", "actor": "deterministic"}, 0, {"return_mean": 400.0},
                     _curve([100.0, 300.0])) for t in TASKS]
-    multitask = [Run({"level": "medium"}, 0, {}, [r | {"return_mean_walk": "150"} for r in
-                                                  _curve([120.0, 250.0], "return_mean_stand")])]
+    multitask = [Run({"level": "medium"}, 0, {}, [r | {"return_mean_walk": "150", "grad_cosine": c,
+                                                       "grad_cosine_stand-walk": c} for r, c in
+                                                  zip(_curve([120.0, 250.0], "return_mean_stand"), ("-0.2", "0.1"))])]
     students = [Run({"loss": "mse", "pairing": "medium"}, seed, {"per_state_tau": {
         "probe_source": "offline", "probe_states_per_task": 8,
         "at_init": {"per_state_tau_a_layer1": 0.6, "per_state_tau_b_layer1": 0.9},
         "final": {"per_state_tau_a_layer1": 0.3, "per_state_tau_b_layer1": 0.5}}},
-        [r | {"return_mean_walk": "200", "action_mse_stand": "0.1", "action_mse_walk": "0.2"}
+        [r | {"return_mean_walk": "200", "action_mse_stand": "0.1", "action_mse_walk": "0.2",
+              "grad_cosine_stand-walk": str(0.3 + 0.1 * seed)}
          for r in _curve([300.0 + seed, 390.0 + seed], "return_mean_stand")]) for seed in (0, 1)]
     evaluation = {task: {"behaviour_medium": _entry(250.0), "behaviour_expert": _entry(600.0),
                          "teacher_medium_deterministic": _entry(404.55), "multitask_medium": _entry(222.2),
@@ -56,8 +58,12 @@ def _full_results() -> StudyResults:
         "probability_of_improvement": {"student_mse_medium_vs_teachers": interval | {
             "value": 0.61, "ci_low": 0.52, "ci_high": 0.7, "samples_x": 60, "samples_y": 30}},
         "note": "IQM note"}
-    evaluation["cross_task"] = {"medium": {"stand": {"stand": 404.6, "walk": 88.6},
-                                           "walk": {"stand": 286.6, "walk": 205.1}}}
+    def cross(mean):
+        return {"mean": mean, "ci_low": mean - 10, "ci_high": mean + 10, "n": 20, "ci_unit": "episode"}
+    evaluation["cross_task"] = {"medium": {"stand": {"stand": cross(404.6), "walk": cross(88.6),
+                                                     "stand_still": cross(380.2)},
+                                           "walk": {"stand": cross(286.6), "walk": cross(205.1),
+                                                    "stand_still": cross(3.1)}}}
     layer = {"per_state_tau_a_mean": 0.452, "per_state_tau_a_sd": 0.101, "per_state_tau_b_mean": 0.617,
              "per_state_tau_b_sd": 0.139, "average_tau_a": -0.011, "average_tau_a_seed_sd": 0.005,
              "average_tau_b": -0.016, "average_tau_b_seed_sd": 0.007, "linear_cka": 0.996, "linear_cka_seed_sd": 0.0,
@@ -95,7 +101,10 @@ def test_report_shows_the_runs_numbers_in_thesis_order_and_draws_the_figures_it_
            "0.999 | n/a | n/a | n/a / n/a | - |" in markdown
     assert "| 0.812 (sd 0.011) | 0.934 (sd 0.020) | 0.081 / 0.047 | 2 |" in markdown  # Procrustes, debiased CKA, eta^2
     assert "mse-medium-0 stand: 0.02, 0.12" in markdown  # dead, dormant share
-    assert "| medium | walk teacher | 286.6 | 205.1 |" in markdown  # Table 6.3 row
+    assert ("| medium | walk teacher | 286.6 [276.6, 296.6] (n=20 episodes) | 205.1 [195.1, 215.1] (n=20 episodes) "
+            "| 3.1 [-6.9, 13.1] (n=20 episodes) |") in markdown  # Table 6.3 row with the transfer task's column
+    assert "stand_still: evaluation only" in markdown and "margin 0.5 m/s" in markdown
+    assert "medium stand_still: the stand teacher (380.2)" in markdown
     assert "the walk teacher (205.1)" in markdown
     assert "1.05" in markdown  # student / teacher = 426.1 / 404.55
     assert "41.5 [38.2, 44.9]" in markdown and "0.61 [0.52, 0.70]" in markdown  # IQM and P(X > Y)
@@ -109,7 +118,11 @@ def test_report_shows_the_runs_numbers_in_thesis_order_and_draws_the_figures_it_
     assert "Not part of this run" not in markdown
     for link in re.findall(r"!\[[^\]]*\]\((report/[^)]+)\)", markdown):
         assert (tmp_path / link).read_bytes()[:4] == b"\x89PNG"
-    assert {p.name for p in (tmp_path / "report").iterdir()} == {"teachers.png", "multitask.png", "losses.png"}
+    assert {p.name for p in (tmp_path / "report").iterdir()} == {"teachers.png", "multitask.png", "losses.png",
+                                                                 "gradient_conflict.png"}
+    # the gradient-conflict curves: the lowest mean cosine along training, and the final one
+    assert "| multi-task actor, medium | stand-walk | -0.200 | 0.100 (1 seed, no interval) |" in markdown
+    assert "| mse students, medium | stand-walk | 0.350 | 0.350 (2 seeds, no interval) |" in markdown
 
 
 def test_every_interval_cell_says_its_unit():

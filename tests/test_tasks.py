@@ -7,7 +7,7 @@ import pytest
 
 from mop_core.config import ConfigError
 from mop_core.envs import PHYSICS_DIM, WalkerEnv, physics_replay_rewards
-from mop_core.tasks import TASKS, check_task_list, get_task, reward
+from mop_core.tasks import TASKS, Stillness, WalkerTask, check_task_list, get_task, reward
 
 TRANSITIONS_PER_POLICY = 5000  # x2 policies = 10,000 per task
 
@@ -104,3 +104,28 @@ def test_unknown_task_names_the_key():
 
 def test_task_order_and_subsets_are_free():
     assert check_task_list(["run", "stand", "walk"], "tasks") == ("run", "stand", "walk")
+
+
+def test_stand_still_is_stand_times_a_speed_penalty():
+    """stand_still = stand * tol(|x|; bounds 0, margin m, gaussian, 0.1): equal to stand at rest, 0.1 of it at
+    |x| = m, and smaller the faster the walker moves either way."""
+    task = get_task("stand_still")
+    margin = task.stillness.margin
+    speeds = np.array([0.0, margin / 5, -margin, margin, 1.0, -8.0])
+    features = np.stack([np.full(6, 1.3), np.full(6, 0.9), speeds], axis=1)
+    stand = reward(features, "stand")
+    ratio = reward(features, "stand_still") / stand
+    assert ratio[0] == 1.0 and np.allclose(ratio[2:4], 0.1, rtol=1e-12)
+    assert np.allclose(ratio[1], np.exp(-(1 / 5) ** 2 * np.log(10.0)), rtol=1e-12)
+    assert ratio[4] < 0.01 and ratio[5] < 1e-100
+    linear = Stillness(margin=0.5, form="linear")
+    assert np.allclose(linear.factor(np.array([0.0, 0.25, -0.5, 0.6])), [1.0, 0.55, 0.1, 0.0], rtol=1e-12)
+
+
+def test_stillness_rejects_bad_settings():
+    with pytest.raises(ValueError, match="form"):
+        Stillness(margin=0.5, form="cosine")
+    with pytest.raises(ValueError, match="margin"):
+        Stillness(margin=0.0)
+    with pytest.raises(ValueError, match="move_speed 0"):
+        WalkerTask("walk_still", 1.0, "walk", 980.0, stillness=Stillness(margin=0.5))

@@ -177,7 +177,9 @@ def test_multitask_critics_see_only_their_own_tasks_rewards(sources, tmp_path, m
     # the learning curve is on the teachers' axis: steps per task, not updates over both tasks (Figure 5.3)
     header, *rows = (tmp_path / "curve.tsv").read_text().splitlines()
     assert [int(row.split("\t")[0]) for row in rows] == [10]
-    assert {"critic_loss_in_stand", "critic_loss_in_walk"} <= set(header.split("\t"))
+    assert {"critic_loss_in_stand", "critic_loss_in_walk", "grad_cosine_stand-walk"} <= set(header.split("\t"))
+    cosine = float(rows[0].split("\t")[header.split("\t").index("grad_cosine")])
+    assert -1 <= cosine <= 1  # the shared actor's gradient conflict (thesis 5.1.2 as a number)
     stand_rewards = set(load_source(sources["stand"], 50)[0].rewards.tolist())
     walk_rewards = set(load_source(sources["walk"], 50)[0].rewards.tolist())
     assert len(seen) == 2

@@ -20,11 +20,13 @@ from mop_core.agents.pbrl import (
     EntropyTemperature,
     PBRLConfig,
     PessimisticCritic,
+    actor_objective,
     actor_step,
     beta_ood,
     make_actor,
     policy_actions,
 )
+from mop_core.conflict import flat_gradient, pairwise_cosines
 from mop_core.data.buffer import Batch
 from mop_core.nn import adam, numpy_policy, soft_update, with_task_id
 
@@ -74,6 +76,19 @@ class MultiTaskPBRL:
         soft_update(self.actor_target, self.actor, self.config.actor_tau)
         critic.soft_update()
         return metrics
+
+    def gradient_cosines(self, batches: Sequence[Batch], generator: torch.Generator) -> dict[str, float]:
+        """The gradient conflict on the shared actor (:mod:`mop_core.conflict`): per task pair, the
+        cosine between task i's and task k's actor-objective gradients (each task's own critic on a
+        batch of its own data, ``batches[i]``). ``generator`` draws the Gaussian actor's samples."""
+        params = list(self.actor.parameters())
+        flat = []
+        for task, batch in enumerate(batches):
+            obs = batch.to(self.device).observations
+            loss, _, _ = actor_objective(self.actor, obs, with_task_id(obs, task, len(self.tasks)),
+                                         self.critics[task], self.temperature.value, generator)
+            flat.append(flat_gradient(loss, params))
+        return pairwise_cosines(flat, self.tasks)[0]
 
     @torch.no_grad()
     def act(self, observations: np.ndarray, task: int) -> np.ndarray:

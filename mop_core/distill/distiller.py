@@ -22,6 +22,7 @@ from typing import Any, Mapping, Sequence
 import torch
 
 from mop_core.config import ConfigError, from_mapping, require
+from mop_core.conflict import flat_gradient, pairwise_cosines
 from mop_core.distill.losses import LOSSES, Q_REDUCTIONS, LossInputs, mse_per_state
 from mop_core.distill.states import STATE_SOURCES, TaskStates
 from mop_core.distill.student import Student, StudentConfig, StudentGroup
@@ -50,8 +51,9 @@ class RankingConfig:
 
     over each hidden layer j, every ordered pair of task ids and ``states`` states per task per step
     (the first ``states`` of the step's draws; the thesis compares the whole batch, whose pairwise
-    loss costs ``batch * width^2`` per layer: 2 states per task keep a step within ~2x a plain one
-    on 2 CPU cores)."""
+    loss costs ``batch * width^2`` per layer; with 2 states per task a group's step at initialisation
+    costs 2.74x a plain one for pairwise, 1.15x for listwise and 2.38x for ApproxNDCG on 2 CPU
+    cores: benchmarks/README.md, distill)."""
 
     loss: str = "none"  # none | pairwise | listwise | approx_ndcg
     weight: float = 100.0  # lambda (thesis: 100)
@@ -175,12 +177,12 @@ class Distiller:
         return torch.randint(len(self.targets[run][task]), (batch_size,), generator=self.generators[run],
                              device=self.device)
 
-    def loss(self, rows: Sequence[Sequence[torch.Tensor]], tasks: Sequence[int] | None = None
-             ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    def loss(self, rows: Sequence[Sequence[torch.Tensor]], tasks: Sequence[int] | None = None,
+             regularise: bool = True) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """The loss on the given state indices (``rows[r][k]``: run r's indices into task ``tasks[k]``;
         default tasks: all, in task order; every run draws the same count per task) and per-run,
         per-task metrics (0-d tensors, not read here, named ``key@run``). The loss is the sum over
-        runs of each run's mean over its rows."""
+        runs of each run's mean over its rows (plus the ranking regulariser when ``regularise``)."""
         cfg = self.config
         tasks = list(range(len(self.tasks))) if tasks is None else list(tasks)
         sizes = [len(r) for r in rows[0]]
@@ -198,7 +200,7 @@ class Distiller:
                                                             tasks, sizes, self.critics, cfg.q_reduction))
         run_losses = per_state.mean(-1)  # [R]
         metrics: dict[str, torch.Tensor] = {}
-        if cfg.ranking.active and len(self.tasks) > 1:
+        if regularise and cfg.ranking.active and len(self.tasks) > 1:
             regulariser = self.ranking_term(obs, sizes)
             run_losses = run_losses + cfg.ranking.weight * regulariser
             for r in range(self.runs):
@@ -223,6 +225,25 @@ class Distiller:
         layers = [a.view(runs, m, count, -1) for a in self.group.hidden(under_ids.view(runs, m * count, width))]
         return cross_task_ranking(layers, ranking_loss(cfg.loss, cfg.temperature), cfg.weights_for(len(layers)),
                                   symmetric=cfg.loss in SYMMETRIC_LOSSES)
+
+    def gradient_cosines(self, generator: torch.Generator) -> list[dict[str, float]]:
+        """PCGrad's conflict measure (Yu et al. 2020) per run: for each task pair (i, k),
+        ``cos(g_i, g_k)`` of the gradients of task i's and task k's distillation loss (``batch_size``
+        fresh states of each task, the ranking regulariser left out) with respect to every student
+        weight. All weights are shared: the task enters as a one-hot input, so only the first layer's
+        task-id rows are task-specific (each task's gradient touches its own row only). A negative
+        cosine is a conflict: a step for one task undoes part of the other's (thesis 5.1.2's
+        explanation of naive multi-task failure). ``generator`` draws the states, so measuring leaves
+        the training index streams untouched. Keys ``grad_cosine_<i>-<k>`` and ``grad_cosine`` (their
+        mean)."""
+        params = [p for p in self.group.parameters() if p.requires_grad]
+        flat = []
+        for t in range(len(self.tasks)):
+            rows = [[torch.randint(len(self.targets[r][t]), (self.config.batch_size,), generator=generator,
+                                   device=self.device)] for r in range(self.runs)]
+            loss, _ = self.loss(rows, [t], regularise=False)  # a sum over runs: run r's rows give its gradient
+            flat.append(flat_gradient(loss, params, self.runs))
+        return pairwise_cosines(flat, self.tasks)
 
     def _step(self, loss: torch.Tensor) -> None:
         self.optimizer.zero_grad(set_to_none=True)

@@ -181,6 +181,15 @@ def distill_student(sources: StudentSources, config: DistillConfig, schedule: Tr
                             paths.timing, device, progress, name)[0]
 
 
+def conflict_rows(distiller: Distiller, seed: int) -> list[dict[str, float]]:
+    """Each run's gradient-conflict columns now (none with one task), on states of a stream of their
+    own per step: measuring changes no training draw, and a resumed run measures what an
+    uninterrupted one does."""
+    if len(distiller.tasks) < 2:
+        return [{} for _ in range(distiller.runs)]
+    return distiller.gradient_cosines(torch.Generator(distiller.device).manual_seed(seed + distiller.updates))
+
+
 def distill_students(sources: StudentSources, config: DistillConfig, schedule: TrainSchedule, episode_length: int,
                      seeds: Sequence[int], study_seed: int, paths: Sequence[RunPaths], resume: Path,
                      timing: Path | None, device: torch.device | str = "cpu", progress: bool = False,
@@ -202,7 +211,8 @@ def distill_students(sources: StudentSources, config: DistillConfig, schedule: T
     # does not depend on the loss or the seed.
     run_seeds = [derive_seeds([study_seed, "distill", *sources.tasks, *levels, seed], ("agent", "states"))
                  for seed in seeds]
-    shared = derive_seeds([study_seed, "distill", *sources.tasks, *levels], ("eval", "final_eval", "probe"))
+    shared = derive_seeds([study_seed, "distill", *sources.tasks, *levels], ("eval", "final_eval", "probe",
+                                                                           "conflict"))
     targets = group_states(sources, teachers, config, episode_length, [s["states"] for s in run_seeds],
                            schedule.rollout_envs, device)
     critics = [t.critic for t in teachers] if LOSSES[config.loss].needs_critics else None
@@ -234,6 +244,7 @@ def distill_students(sources: StudentSources, config: DistillConfig, schedule: T
 
     def evaluate(eval_seeds: list[int]) -> dict[str, float]:
         rows = evaluate_runs([distiller.student(r) for r in range(len(seeds))], eval_seeds)
+        rows = [row | cosines for row, cosines in zip(rows, conflict_rows(distiller, shared["conflict"]))]
         group_row = {run_key(k, r): v for r, row in enumerate(rows) for k, v in row.items()}
         return group_row | {"return_mean": float(np.mean([row["return_mean"] for row in rows]))}
 
