@@ -27,6 +27,7 @@ from mop_core.runs import (
     TeacherRun,
     cross_group,
     ranking_variant,
+    sharing_teachers,
     width_variant,
 )
 from mop_core.runtime import derive_seeds
@@ -34,6 +35,7 @@ from mop_core.study import (
     distill_grid,
     multitask_grid,
     pairing_levels,
+    sharing_grid,
     structure_grid,
     study_config,
     teacher_grid,
@@ -78,6 +80,7 @@ class Catalogue:
     students: tuple[StudentRun, ...]
     teacher_seed: int  # the teacher seed students learn from and cross-task tables show
     teacher_actors: tuple[str, ...]
+    shared_teachers: tuple[TeacherRun, ...] = ()  # teachers on relabelled data (data_sharing: DS, OQS)
 
     def student_batches(self) -> dict[str, list[StudentRun]]:
         """distill entry (``<loss>-<pairing>``) -> the students it trains together (one per seed)."""
@@ -113,6 +116,9 @@ class Catalogue:
                 if (task, level) in cross:
                     jobs += [Job(cross_group(level, task), self.teacher_seed, cross[task, level].paths.checkpoint,
                                  other) for other in (*self.tasks, *transfer_tasks) if other != task]
+            for level in self.levels:
+                jobs += [Job(t.group, t.seed, t.paths.checkpoint, task) for t in self.shared_teachers
+                         if t.task == task and t.level == level]
         for run in self.multitask:
             jobs += [Job(run.group, run.seed, run.paths.checkpoint, task, task) for task in run.tasks]
         for run in self.students:
@@ -140,8 +146,19 @@ class Catalogue:
         return [run for run in self.students if not run.variant]
 
     def variant_students(self) -> list[StudentRun]:
-        """The common-structure variants' students (thesis 6.3)."""
+        """The common-structure and data-sharing variants' students (thesis 6.3, 6.4)."""
         return [run for run in self.students if run.variant]
+
+    def sharing_students(self) -> list[StudentRun]:
+        """The data-sharing students (thesis 6.4: DS, OQS)."""
+        return [run for run in self.students if run.shared_states]
+
+    def shared_teacher_batches(self) -> dict[str, list[TeacherRun]]:
+        """train_shared_teachers entry (``<kind>-<level>-<actor>``) -> the teachers it trains together."""
+        batches: dict[str, list[TeacherRun]] = {}
+        for run in self.shared_teachers:
+            batches.setdefault(run.batch, []).append(run)
+        return batches
 
     def student_comparisons(self) -> list[tuple[str, str]]:
         """(X, Y) student groups compared head to head: every pair of losses on the same pairing, and
@@ -168,6 +185,20 @@ def make_student(loss: str, pairing: str, seed: int, tasks: tuple[str, ...], lev
                                                  for task, level in zip(tasks, levels)), variant)
 
 
+def make_sharing_student(variant: str, level: str, seed: int, tasks: tuple[str, ...],
+                         teacher_seed: int) -> StudentRun:
+    """A data-sharing MSE student (thesis 6.4) of one level, on the union of the tasks' datasets:
+    ``ds`` learns from the DS teachers; ``oqs_<judge>`` from the Q-switch over task i's teachers on
+    D_{j->i} for every j (i = j: MOP's own teacher, reused), its ``teachers`` MOP's."""
+    own = tuple(TeacherRun(task, level, "deterministic", teacher_seed) for task in tasks)
+    if variant == "ds":
+        shared = tuple(TeacherRun(task, level, "deterministic", teacher_seed, tasks) for task in tasks)
+        return StudentRun("mse", level, seed, shared, variant, shared_states=True)
+    candidates = tuple(tuple(own[i] if j == task else TeacherRun(task, level, "deterministic", teacher_seed, (j,))
+                             for j in tasks) for i, task in enumerate(tasks))
+    return StudentRun("mse", level, seed, own, variant, candidates, shared_states=True)
+
+
 def structure_variants(params: Mapping[str, Any]) -> tuple[str, tuple[str, ...]]:
     """The common_structure section's pairing and student variants (widths, then ranking losses)."""
     grid = structure_grid(params, study_config(params))
@@ -189,13 +220,19 @@ def build_catalogue(params: Mapping[str, Any]) -> Catalogue:
     students += tuple(make_student("mse", structure_pairing, seed, study.tasks,
                                    pairing_levels(structure_pairing, study), grid.teacher_seed, variant)
                       for variant in variants for seed in grid.seeds)
+    sharing = sharing_grid(params, study)
+    shared_teachers = tuple(t for level in sharing.levels
+                            for t in sharing_teachers(study.tasks, level, sharing.teachers, grid.teacher_seed))
+    students += tuple(make_sharing_student(variant, level, seed, study.tasks, grid.teacher_seed)
+                      for level in sharing.levels for variant in sharing.students for seed in grid.seeds)
     return Catalogue(
         tasks=study.tasks, levels=study.levels, study_seed=study.seed,
         behaviour=tuple(BehaviourRun(task, level) for task in study.tasks for level in BEHAVIOUR_LEVELS),
         teachers=teachers,
         multitask=tuple(MultitaskRun(level, seed, study.tasks) for level in multitask.levels
                         for seed in multitask.seeds),
-        students=students, teacher_seed=grid.teacher_seed, teacher_actors=teacher.actors)
+        students=students, teacher_seed=grid.teacher_seed, teacher_actors=teacher.actors,
+        shared_teachers=shared_teachers)
 
 
 def student_inputs(runs: list[StudentRun]) -> dict:
@@ -205,13 +242,14 @@ def student_inputs(runs: list[StudentRun]) -> dict:
     its own record only, so retraining one teacher reruns just the students that learn from it (DVC
     cannot list a matrix entry's dependencies per entry: treeverse/dvc#8171)."""
     first = runs[0]
-    if any(run.teachers != first.teachers for run in runs):
+    if any(run.all_teachers != first.all_teachers for run in runs):
         raise ValueError(f"runs: the students of {first.batch} must learn from the same teachers")
+    datasets = list(dict.fromkeys(d for t in first.all_teachers for d in (t.dataset, *t.datasets)))
     return {"students": [run.name for run in runs], "tasks": list(first.tasks),
             "teachers": [{"path": t.paths.checkpoint.as_posix(), "sha256": file_sha256(t.paths.checkpoint)}
-                         for t in first.teachers],
-            "datasets": [{"path": t.dataset.as_posix(), "content_sha256": str(read_dataset_attrs(t.dataset)[
-                "content_sha256"])} for t in first.teachers]}
+                         for t in first.all_teachers],
+            "datasets": [{"path": d.as_posix(), "content_sha256": str(read_dataset_attrs(d)["content_sha256"])}
+                         for d in datasets]}
 
 
 def check_student_inputs(runs: list[StudentRun], record: dict, where: Path) -> None:

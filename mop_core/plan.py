@@ -16,7 +16,9 @@ are the exceptions it models); a student group of R seeds costs the time per upd
 between the measured R = 1 and R = 8; the KL loss costs what MSE does (the same network, no critic);
 collect steps one walker per TD3 update at the single-environment rate; the common-structure students
 (distill_width, distill_ranking) cost what plain MSE students do (no rate is measured for other widths
-or for the ranking regulariser: a lower bound for width 512 and for the regulariser). It is an
+or for the ranking regulariser: a lower bound for width 512 and for the regulariser); a data-sharing
+teacher (train_shared_teachers) costs what a deterministic teacher does (its data is larger, its
+updates are not) and a data-sharing student what a plain MSE student does. It is an
 estimate from rates measured in isolation, not a measurement of the stages.
 """
 
@@ -122,7 +124,18 @@ def stage_hours(params: Mapping[str, Any], rates: Rates) -> dict[str, tuple[int,
         out[stage] = (entries * seeds, entries * per_entry / 3600)
         students += entries * seeds
 
+    sharing = params.get("data_sharing", {})
+    sharing_levels, kinds = sharing.get("levels", []), sharing.get("teachers", [])
+    shared_teachers = len(sharing_levels) * (len(tasks) * ("ds" in kinds)
+                                             + len(tasks) * (len(tasks) - 1) * ("oqs" in kinds))
+    per_teacher = (t_sched["steps"] / rates.pbrl["deterministic"] + _evaluation_steps(t_sched, length) / rates.rollout)
+    out["train_shared_teachers"] = (shared_teachers, shared_teachers * per_teacher / 3600)
+    entries = len(sharing_levels) * len(sharing.get("students", []))
+    out["distill_sharing"] = (entries * seeds, entries * per_entry / 3600)
+    students += entries * seeds
+
     policies = (2 * len(tasks)  # behaviour medium and expert
+                + shared_teachers
                 + len(tasks) * len(levels) * len(teachers["actors"]) * len(teachers["seeds"])
                 + len(levels) * len(tasks) * (len(tasks) - 1)  # cross-task teachers
                 + count * len(tasks) + students * len(tasks))
@@ -188,6 +201,8 @@ def one_level_grid(params: Mapping[str, Any]) -> dict:
     out["distill"].update(pairings=[level], teacher_seed=out["train_teachers"]["seeds"][0])
     if "common_structure" in out:
         out["common_structure"]["pairing"] = level
+    if out.get("data_sharing", {}).get("levels"):
+        out["data_sharing"]["levels"] = [level]
     return out
 
 

@@ -88,7 +88,7 @@ def comparison(results: StudyResults, rows: Sequence[tuple[object, str, Sequence
 def structure_section(results: StudyResults, figure_dir: Path, link_prefix: str) -> str:
     """Section 7a: the width sweep (6.3.1) and the ranking regularisers (6.3.2)."""
     out = ["## 7a. Common structure at the computational level (thesis 6.3, Figures 6.4 and 6.5)", ""]
-    variants = results.variants
+    variants = [r for r in results.variants if r.key["variant"].startswith((WIDTH_PREFIX, RANKING_PREFIX))]
     if not variants:
         return "\n".join(out + [not_run("the common-structure students", "Set `common_structure.widths` or "
                                         "`common_structure.ranking_losses` and run `dvc repro`."), ""])

@@ -2,13 +2,17 @@
 
 - :class:`BehaviourRun`: a TD3 snapshot of the collect stage (medium, expert) per task;
 - :class:`TeacherRun`: a PBRL teacher per (task, level, actor type, seed); every task and seed of a
-  (level, actor type) trains in one train_teachers entry, as one vectorised group (its ``batch``);
+  (level, actor type) trains in one train_teachers entry, as one vectorised group (its ``batch``).
+  A teacher on relabelled data (thesis 6.4) names its ``sources``: the tasks whose datasets, with
+  its own task's rewards, it learns from (D_{j->i}): every task for data sharing (DS), one other
+  task for an offline Q-switch candidate (OQS); these train in the train_shared_teachers entries;
 - :class:`MultitaskRun`: the naive multi-task PBRL baseline per (level, seed);
 - :class:`StudentRun`: a distilled student per (loss, pairing, seed), with the teachers it learns
   from (one per study task); every seed of a (loss, pairing) trains in one distill entry, as one
   vectorised group (its ``batch``). A common-structure variant (thesis 6.3: a width, a ranking
   regulariser) is a student with a ``variant``, trained in its own distill_width / distill_ranking
-  entry.
+  entry; so are the data-sharing students (6.4: ``ds``, ``oqs_own``, ``oqs_target``), which learn from
+  other teachers on the union of the tasks' datasets (distill_sharing entries).
 
 Each run has a ``name`` (its files), a ``group`` (the eval stage's key: the runs whose returns form
 one confidence interval, e.g. every seed of a student) and its file paths (mop_core.layout). The
@@ -19,6 +23,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Sequence
 
 from mop_core.artifacts import RunPaths
 from mop_core.layout import behaviour_checkpoint, dataset_file, relabel_file, run_paths, tau_curves_dir
@@ -39,6 +44,22 @@ def teacher_batch(level: str, actor: str) -> str:
     """The train_teachers entry (and file folder) of every task and seed of a (level, actor type):
     ``<level>-<actor>``, trained as one vectorised group."""
     return f"{level}-{actor}"
+
+
+SHARING_KINDS = ("ds", "oqs")  # teachers on relabelled data (thesis 6.4.2, 6.4.3)
+Q_SWITCH_JUDGES = ("own", "target")  # OQS: each candidate judged by its own critics, or by the target task's
+
+
+def sharing_teacher_batch(kind: str, level: str, actor: str) -> str:
+    """The train_shared_teachers entry (and file folder) of the teachers of one sharing kind and level:
+    ``ds-<level>-<actor>`` (one per task) or ``oqs-<level>-<actor>`` (one per task pair j != i)."""
+    return f"{kind}-{level}-{actor}"
+
+
+def sharing_variant(kind: str, judge: str = "") -> str:
+    """The student variant of a sharing kind: ``ds``, or ``oqs_<judge>`` (thesis 6.4.3's rule, ``own``,
+    or the target task's critic judging every candidate, ``target``)."""
+    return f"{kind}_{judge}" if judge else kind
 
 
 def multitask_group(level: str) -> str:
@@ -108,21 +129,44 @@ class TeacherRun:
     level: str
     actor: str  # PBRL actor type: deterministic | gaussian
     seed: int
+    sources: tuple[str, ...] = ()  # tasks whose level-datasets it learns from with ``task``'s rewards; () = (task,)
     family = "teachers"
 
     @property
+    def data_tasks(self) -> tuple[str, ...]:
+        """The tasks whose datasets (relabelled to ``task``) this teacher learns from: D_{j->task}."""
+        return self.sources or (self.task,)
+
+    @property
+    def sharing(self) -> str:
+        """"" (its own data, MOP), ``ds`` (the union of several tasks' data) or ``oqs`` (another task's)."""
+        if self.data_tasks == (self.task,):
+            return ""
+        return "ds" if len(self.data_tasks) > 1 else "oqs"
+
+    @property
     def name(self) -> str:
-        return f"{self.task}-{self.level}-{self.actor}-{self.seed}"
+        if not self.sharing:
+            return f"{self.task}-{self.level}-{self.actor}-{self.seed}"
+        return f"{self.task}-from-{'+'.join(self.data_tasks)}-{self.level}-{self.actor}-{self.seed}"
 
     @property
     def group(self) -> str:
-        return teacher_group(self.level, self.actor)
+        """Eval group: MOP's teachers; DS's (``teacher_ds_<level>_<actor>``); OQS's candidates by source
+        task (``teacher_from_<j>_<level>_<actor>``: task i's teacher on D_{j->i}, evaluated on i)."""
+        if not self.sharing:
+            return teacher_group(self.level, self.actor)
+        kind = "ds" if self.sharing == "ds" else f"from_{self.data_tasks[0]}"
+        return f"teacher_{kind}_{self.level}_{self.actor}"
 
     @property
     def batch(self) -> str:
-        """The train_teachers entry that trains this teacher with every other task and seed of its
-        (level, actor type), as one vectorised group: ``<level>-<actor>``, the folder of its files."""
-        return teacher_batch(self.level, self.actor)
+        """The entry that trains this teacher with every other task and seed of its (level, actor type[,
+        sharing kind]), as one vectorised group: ``<level>-<actor>`` (``<kind>-<level>-<actor>``), the
+        folder of its files."""
+        if not self.sharing:
+            return teacher_batch(self.level, self.actor)
+        return sharing_teacher_batch(self.sharing, self.level, self.actor)
 
     @property
     def paths(self) -> RunPaths:
@@ -130,11 +174,21 @@ class TeacherRun:
 
     @property
     def dataset(self) -> Path:
+        """The dataset of its own task (the states MOP's students of this teacher use)."""
         return dataset_file(self.task, self.level)
 
     @property
     def relabel(self) -> Path:
         return relabel_file(self.task, self.level)
+
+    @property
+    def datasets(self) -> tuple[Path, ...]:
+        """The datasets it learns from, one per data task (their rewards: :attr:`relabels`' ``task`` column)."""
+        return tuple(dataset_file(j, self.level) for j in self.data_tasks)
+
+    @property
+    def relabels(self) -> tuple[Path, ...]:
+        return tuple(relabel_file(j, self.level) for j in self.data_tasks)
 
 
 @dataclass(frozen=True)
@@ -167,7 +221,9 @@ class StudentRun:
     pairing: str
     seed: int
     teachers: tuple[TeacherRun, ...]  # one per task, in task-id order
-    variant: str = ""  # a common-structure variant (w16, rank_pairwise: mop_core.distill.variants); "" = MOP
+    variant: str = ""  # a common-structure variant (w16, rank_pairwise, ds, oqs_own: mop_core.distill.variants)
+    candidates: tuple[tuple[TeacherRun, ...], ...] = ()  # OQS: per task i, its teachers on D_{j->i} for every j
+    shared_states: bool = False  # states from the union of every task's dataset (DS, OQS), not each task's own
     family = "students"
 
     @property
@@ -211,9 +267,35 @@ class StudentRun:
 
     @property
     def datasets(self) -> tuple[Path, ...]:
-        """Each task's offline dataset: the one its teacher was trained on."""
+        """Each task's own offline dataset (its MOP teacher's; the per-state tau probes come from it)."""
         return tuple(t.dataset for t in self.teachers)
+
+    @property
+    def state_datasets(self) -> tuple[Path, ...]:
+        """The union every task's distillation states come from (DS, OQS: D = U_i D_i); () = each
+        task's own dataset."""
+        return self.datasets if self.shared_states else ()
+
+    @property
+    def all_teachers(self) -> tuple[TeacherRun, ...]:
+        """Every teacher it reads: one per task, and for OQS every candidate (each once, task order)."""
+        runs = list(self.teachers)
+        for per_task in self.candidates:
+            runs += [t for t in per_task if t not in runs]
+        return tuple(runs)
 
     @property
     def teacher_seed(self) -> int:
         return self.teachers[0].seed
+
+
+def sharing_teachers(tasks: Sequence[str], level: str, kinds: Sequence[str], seed: int) -> tuple[TeacherRun, ...]:
+    """The teachers on relabelled data of one level (deterministic, seed ``seed``): ``ds``, per task i
+    one on the union over every task j of D_{j->i}; ``oqs``, per pair j != i one on D_{j->i}."""
+    runs: list[TeacherRun] = []
+    if "ds" in kinds:
+        runs += [TeacherRun(task, level, "deterministic", seed, tuple(tasks)) for task in tasks]
+    if "oqs" in kinds:
+        runs += [TeacherRun(task, level, "deterministic", seed, (source,)) for task in tasks for source in tasks
+                 if source != task]
+    return tuple(runs)

@@ -24,7 +24,7 @@ from mop_core.schedule import TrainSchedule
 from mop_core.tasks import check_task_list
 
 SECTIONS = ("study", "collect", "relabel", "train_teachers", "train_multitask", "distill", "common_structure",
-            "eval", "shared_computation")
+            "data_sharing", "eval", "shared_computation")
 RANKING_LOSS_NAMES = ("pairwise", "listwise", "approx_ndcg")  # mop_core.ranking.RANKING_LOSSES (tested equal)
 
 
@@ -120,6 +120,32 @@ class StructureGrid:
         require_unique(self.ranking_losses, "ranking_losses")
 
 
+SHARING_TEACHERS = ("ds", "oqs")  # mop_core.runs.SHARING_KINDS (tested equal)
+SHARING_STUDENTS = {"ds": "ds", "oqs_own": "oqs", "oqs_target": "oqs"}  # student variant -> teachers it needs
+
+
+@dataclass(frozen=True)
+class SharingGrid:
+    """The data_sharing section (thesis 6.4): per level, teachers on relabelled data D_{j->i} (``ds``:
+    one per task on the union over j; ``oqs``: one per pair j != i) and MSE students of them (``ds``;
+    ``oqs_own`` / ``oqs_target``: Q-switch targets judged by each candidate's own critics or by the
+    target task's), next to plain MOP of the same level. Empty lists train none."""
+
+    levels: tuple[str, ...] = ()
+    teachers: tuple[str, ...] = ()
+    students: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        for key, known in (("teachers", SHARING_TEACHERS), ("students", tuple(SHARING_STUDENTS))):
+            for i, name in enumerate(getattr(self, key)):
+                require(name in known, f"{key}[{i}]", f"one of {', '.join(known)}", name)
+            require_unique(getattr(self, key), key)
+        require_unique(self.levels, "levels")
+        for i, student in enumerate(self.students):
+            require(SHARING_STUDENTS[student] in self.teachers, f"students[{i}]",
+                    f"its {SHARING_STUDENTS[student]} teachers in teachers", student)
+
+
 # ---- sections -------------------------------------------------------------------------------------
 def check_sections(params: Mapping[str, Any], where: str = "params.yaml") -> None:
     """Refuse a section no stage reads (a misspelled ``distil:`` would otherwise be ignored)."""
@@ -186,6 +212,26 @@ def structure_grid(params: Mapping[str, Any], study: StudyConfig) -> StructureGr
         actors = section(params, "train_teachers").get("actors", [])
         require("deterministic" in actors, "common_structure", "deterministic teachers in train_teachers.actors "
                 "(the variants are MSE students)", actors)
+    return grid
+
+
+def sharing_grid(params: Mapping[str, Any], study: StudyConfig) -> SharingGrid:
+    """The data_sharing section (absent: none), its levels checked against the study and the MOP
+    students they are compared with (a distill pairing of that level for every task)."""
+    grid = from_mapping(SharingGrid, section(params, "data_sharing"), "data_sharing")
+    pairings = [pairing_levels(str(p), study, "distill.pairings") for p in section(params, "distill").get(
+        "pairings") or []]
+    for i, level in enumerate(grid.levels):
+        require(level in study.levels, f"data_sharing.levels[{i}]", f"one of study.levels {list(study.levels)}",
+                level)
+        require((level,) * len(study.tasks) in pairings, f"data_sharing.levels[{i}]", "a level with a distill "
+                "pairing of it (the MOP students the data-sharing students are compared with)", level)
+    if grid.levels and (grid.teachers or grid.students):
+        require(len(study.tasks) >= 2, "data_sharing", "at least two study.tasks (data is shared between tasks)",
+                list(study.tasks))
+        actors = section(params, "train_teachers").get("actors", [])
+        require("deterministic" in actors, "data_sharing", "deterministic teachers in train_teachers.actors "
+                "(OQS reuses MOP's; the students are MSE students)", actors)
     return grid
 
 

@@ -27,6 +27,7 @@ from mop_core.study import (
     multitask_grid,
     pairing_levels,
     section,
+    sharing_grid,
     study_config,
     teacher_grid,
     typed_section,
@@ -86,6 +87,7 @@ def check_params(params: Mapping[str, Any], where: str = "params.yaml") -> None:
     with keys_under("distill"):  # a variant's settings (ranking.states against batch_size) under distill.*
         for variant in variants:
             variant_config(distill_config(params, "mse"), variant)
+    sharing_grid(params, study)
     check_batch_sizes(params, study, collect)
     evaluation = typed_section(params, "eval", EvalConfig)
     for i, task in enumerate(evaluation.transfer_tasks):

@@ -73,19 +73,47 @@ class DataSource:
     level: str | None = None  # the file's dataset level (checked if set)
 
 
-def load_source(source: DataSource, episode_length: int, device: torch.device | str = "cpu"
-                ) -> tuple[TransitionTensors, dict]:
-    """The transitions as tensors and a summary (content hash, level, mean episode return)."""
+def _read_source(source: DataSource, episode_length: int) -> tuple[dict, np.ndarray, np.ndarray, dict]:
     dataset = read_dataset(source.dataset, verify_checksum=True, task=source.source_task, level=source.level)
     rewards = read_relabel(source.relabel, dataset, source.reward_task)[source.reward_task]
     returns = trajectory_returns(rewards, dataset.arrays["timeouts"] | dataset.arrays["terminals"], episode_length)
-    summary = {"dataset": str(source.dataset), "source_task": str(dataset.attrs["task"]),
-               "level": str(dataset.attrs["level"]), "reward_task": source.reward_task,
-               "content_sha256": str(dataset.attrs["content_sha256"]), "transitions": len(dataset),
-               "return_mean": float(returns.mean()) if len(returns) else float("nan"),
-               "return_std": float(returns.std()) if len(returns) else float("nan"),
-               "complete_episodes": int(len(returns))}
-    return TransitionTensors.from_arrays(dataset.arrays, rewards, device), summary
+    return dataset.arrays, rewards, returns, dict(dataset.attrs)
+
+
+def _summary(sources: Sequence[DataSource], attrs: Sequence[dict], transitions: int, returns: np.ndarray) -> dict:
+    return {"dataset": " + ".join(str(s.dataset) for s in sources),
+            "source_task": "+".join(str(a["task"]) for a in attrs),
+            "level": "+".join(dict.fromkeys(str(a["level"]) for a in attrs)),
+            "reward_task": sources[0].reward_task,
+            "content_sha256": "+".join(str(a["content_sha256"]) for a in attrs), "transitions": transitions,
+            "return_mean": float(returns.mean()) if len(returns) else float("nan"),
+            "return_std": float(returns.std()) if len(returns) else float("nan"),
+            "complete_episodes": int(len(returns))}
+
+
+def load_source(source: DataSource, episode_length: int, device: torch.device | str = "cpu"
+                ) -> tuple[TransitionTensors, dict]:
+    """The transitions as tensors and a summary (content hash, level, mean episode return)."""
+    arrays, rewards, returns, attrs = _read_source(source, episode_length)
+    return TransitionTensors.from_arrays(arrays, rewards, device), _summary([source], [attrs], len(rewards), returns)
+
+
+def load_sources(sources: Sequence[DataSource], episode_length: int, device: torch.device | str = "cpu"
+                 ) -> tuple[TransitionTensors, dict]:
+    """The union of several D_{j->i} (one reward task) as one set of tensors, in the order given
+    (thesis 6.4.2's U_j D_{j->i}: each file's transitions with the reward task's relabelled rewards);
+    the summary joins the files' names, tasks and content hashes with '+' and gives the episode
+    returns over all of them. One source: :func:`load_source`."""
+    if len(sources) == 1:
+        return load_source(sources[0], episode_length, device)
+    require(len({s.reward_task for s in sources}) == 1, "sources", "one reward task for every file of a union",
+            [s.reward_task for s in sources])
+    read = [_read_source(source, episode_length) for source in sources]
+    keys = ("observations", "actions", "next_observations", "terminals", "timeouts")
+    arrays = {key: np.concatenate([r[0][key] for r in read]) for key in keys}
+    rewards, returns = np.concatenate([r[1] for r in read]), np.concatenate([r[2] for r in read])
+    return (TransitionTensors.from_arrays(arrays, rewards, device),
+            _summary(sources, [r[3] for r in read], len(rewards), returns))
 
 
 def check_batch_fits(config: TeacherConfig, summary: dict) -> None:
@@ -101,12 +129,18 @@ def run_seeds(study_seed: int, name: Sequence[str], seed: int) -> dict[str, int]
 
 @dataclass(frozen=True)
 class TeacherJob:
-    """One run of a teacher group: the task it learns, its data (D_{i->i}), its seed and its files."""
+    """One run of a teacher group: the task it learns, its data (D_{i->i}; with ``extra_sources`` the
+    union of D_{j->i}, thesis 6.4.2), its seed and its files."""
 
     task: str
     source: DataSource
     seed: int
     paths: RunPaths
+    extra_sources: tuple[DataSource, ...] = ()
+
+    @property
+    def sources(self) -> tuple[DataSource, ...]:
+        return (self.source, *self.extra_sources)
 
 
 class _GroupLearner:
@@ -155,13 +189,12 @@ def train_teacher_group(jobs: Sequence[TeacherJob], config: TeacherConfig, study
     for job in jobs:
         check_task_list([job.task], "task")
     device = torch.device(device)
-    loaded: dict[tuple[Path, Path, str], tuple[TransitionTensors, dict]] = {}
+    loaded: dict[tuple[DataSource, ...], tuple[TransitionTensors, dict]] = {}
     for job in jobs:  # the seeds of one task share one copy of its data
-        key = (job.source.dataset, job.source.relabel, job.source.reward_task)
-        if key not in loaded:
-            loaded[key] = load_source(job.source, config.episode_length, device)  # in memory on the learner's device
-            check_batch_fits(config, loaded[key][1])
-    data = [loaded[(j.source.dataset, j.source.relabel, j.source.reward_task)] for j in jobs]
+        if job.sources not in loaded:  # in memory on the learner's device
+            loaded[job.sources] = load_sources(job.sources, config.episode_length, device)
+            check_batch_fits(config, loaded[job.sources][1])
+    data = [loaded[j.sources] for j in jobs]
     seeds = [run_seeds(study_seed, [job.task, summary["source_task"], summary["level"]], job.seed)
              for job, (_, summary) in zip(jobs, data)]
     agent = PBRLGroup(config.pbrl, OBS_DIM, ACT_DIM, [s["agent"] for s in seeds], device)
@@ -283,6 +316,7 @@ class Teacher:
     critic: EnsembleCritic
     actor_sha256: str = ""
     metrics: dict = field(default_factory=dict)  # the training run's metrics (final return, dataset return)
+    source_task: str = ""  # the task(s) whose data it learned from ('+'-joined for a union), D_{j->task}
 
     def act(self, observations: np.ndarray) -> np.ndarray:
         return numpy_policy(self.actor)(observations)
@@ -301,7 +335,8 @@ def teacher_from_checkpoint(payload: dict) -> Teacher:
                             config.layer_norm)
     critic.load_state_dict(payload["critic"])
     return Teacher(payload["task"], payload["level"], payload["seed"], config, actor.eval().requires_grad_(False),
-                   critic.eval().requires_grad_(False), payload["actor_sha256"], dict(payload["metrics"]))
+                   critic.eval().requires_grad_(False), payload["actor_sha256"], dict(payload["metrics"]),
+                   str(payload.get("dataset", {}).get("source_task", "")))
 
 
 def check_teacher_checkpoint(path: str | Path, task: str, level: str, seed: int, study_seed: int,

@@ -19,6 +19,11 @@ results/students/tau/<loss>-<pairing>/<name>/; and the group's timing results/ti
 variant of the students (thesis 6.3; the distill_width and distill_ranking entries): the same
 teachers, states and seeds as the plain students, one setting changed; its files use
 ``<loss>-<variant>-<pairing>`` where the plain ones use ``<loss>-<pairing>``.
+
+``--variant ds | oqs_own | oqs_target`` with ``--pairing <level>`` (the distill_sharing entries, thesis
+6.4, the data_sharing section) trains MSE students on the union of the tasks' datasets of that level:
+``ds`` imitating the teachers trained on U_j D_{j->i}, ``oqs_<judge>`` the offline Q-switch over task
+i's teachers on D_{j->i} (MOP's own for j = i).
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ import argparse
 
 from common import load_params, require_inputs, run_stage
 
-from mop_core.catalogue import LOSS_ACTORS, make_student, structure_variants
+from mop_core.catalogue import LOSS_ACTORS, make_sharing_student, make_student, structure_variants
 from mop_core.config import ConfigError, keys_under, require
 from mop_core.data import read_json
 from mop_core.distill.distiller import distill_config
@@ -43,7 +48,7 @@ from mop_core.distill.variants import variant_config
 from mop_core.layout import student_inputs_file
 from mop_core.plots import read_curve
 from mop_core.runtime import configure_compute, progress_enabled, resolve_device
-from mop_core.study import distill_grid, pairing_levels, study_config
+from mop_core.study import distill_grid, pairing_levels, sharing_grid, study_config
 from mop_core.teachers import teacher_config
 
 
@@ -60,9 +65,13 @@ def main() -> None:
     study = study_config(params)
     grid, config = distill_grid(params, study, LOSS_ACTORS), distill_config(params, args.loss)
     structure_pairing, variants = structure_variants(params)
-    require(not args.variant or (args.variant in variants and args.pairing == structure_pairing), "--variant",
-            f"one of the common_structure variants {list(variants)} with --pairing {structure_pairing}",
-            args.variant)
+    sharing = sharing_grid(params, study)
+    sharing_variant = args.variant in sharing.students and args.pairing in sharing.levels
+    require(not args.variant or (args.variant in variants and args.pairing == structure_pairing) or sharing_variant,
+            "--variant", f"one of the common_structure variants {list(variants)} with --pairing {structure_pairing}, "
+            f"or of data_sharing.students {list(sharing.students)} with a --pairing of data_sharing.levels "
+            f"{list(sharing.levels)}", args.variant)
+    require(not sharing_variant or args.loss == "mse", "--loss", "mse for the data-sharing students", args.loss)
     config = variant_config(config, args.variant)
     seeds = list(grid.seeds) if args.seeds is None else args.seeds
     require(len(set(seeds)) == len(seeds) and set(seeds) <= set(grid.seeds), "--seeds",
@@ -70,11 +79,15 @@ def main() -> None:
     if len(study.tasks) < 2:
         raise ConfigError(f"study.tasks: a multi-task student needs at least two tasks, got {list(study.tasks)}")
     levels = pairing_levels(args.pairing, study)
-    runs = [make_student(args.loss, args.pairing, seed, study.tasks, levels, grid.teacher_seed, args.variant)
-            for seed in seeds]
+    if sharing_variant:
+        runs = [make_sharing_student(args.variant, args.pairing, seed, study.tasks, grid.teacher_seed)
+                for seed in seeds]
+    else:
+        runs = [make_student(args.loss, args.pairing, seed, study.tasks, levels, grid.teacher_seed, args.variant)
+                for seed in seeds]
     batch = runs[0].batch
     device = resolve_device(study.device, "study.device")
-    require_inputs([t.paths.checkpoint for t in runs[0].teachers], "train_teachers")
+    require_inputs([t.paths.checkpoint for t in runs[0].all_teachers], "train_teachers")
     require_inputs(runs[0].datasets, "collect")
     require_inputs([student_inputs_file(batch)], "student_inputs")
     check_student_files(runs, study.seed, lambda actor: teacher_config(params, study, actor),
@@ -82,7 +95,10 @@ def main() -> None:
 
     configure_compute(grid.threads)
     first = runs[0]
-    sources = StudentSources(first.tasks, tuple(t.paths.checkpoint for t in first.teachers), first.datasets)
+    sources = StudentSources(first.tasks, tuple(t.paths.checkpoint for t in first.teachers), first.datasets,
+                             first.state_datasets,
+                             tuple(tuple(t.paths.checkpoint for t in per_task) for per_task in first.candidates),
+                             args.variant.split("_", 1)[1] if first.candidates else "own")
     group_paths = first.paths  # the group's resume file and timing record
     with keys_under("distill"):  # sizes checked against the states: distill.batch_size
         records = distill_students(sources, config, grid.schedule, study.episode_length, seeds, study.seed,

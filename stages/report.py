@@ -17,6 +17,7 @@ from mop_core.data import atomic_path, write_json
 from mop_core.headline import headline_metrics
 from mop_core.layout import HEADLINE_METRICS, RESULTS
 from mop_core.report import load_results, render_report
+from mop_core.report_sharing import sharing_section
 from mop_core.report_structure import structure_section
 
 REPORT = RESULTS / "report.md"
@@ -27,7 +28,8 @@ def main() -> None:
     params = load_params()
     results = load_results(build_catalogue(params), params)
     prefix = FIGURES.relative_to(RESULTS).as_posix() + "/"
-    markdown = render_report(results, FIGURES, prefix, [structure_section(results, FIGURES, prefix)])
+    later = [structure_section(results, FIGURES, prefix), sharing_section(results, FIGURES, prefix)]
+    markdown = render_report(results, FIGURES, prefix, later)
     with atomic_path(REPORT) as tmp:
         tmp.write_text(markdown)
     write_json(HEADLINE_METRICS, headline_metrics(results.evaluation, results.shared, results.tasks))

@@ -38,6 +38,12 @@ def catalogue(tiny_params):
     return build_catalogue(tiny_params)
 
 
+@pytest.fixture
+def plain_catalogue(tiny_params):
+    """The tiny study without its data-sharing runs (thesis 6.4: tested on their own below)."""
+    return build_catalogue(_with(tiny_params, data_sharing={"levels": []}))
+
+
 def _with(params: dict, **sections) -> dict:
     """A copy of ``params`` with ``section={key: value}`` entries replaced."""
     params = copy.deepcopy(params)
@@ -54,7 +60,11 @@ def test_the_tiny_study_has_these_runs_in_this_order(catalogue):
                                                     "walk-medium-deterministic-0", "walk-medium-gaussian-0"]
     assert catalogue.multitask == (MultitaskRun("medium", 0, TASKS),)
     assert [s.name for s in catalogue.students] == ["mse-medium-0", "q-medium-0", "kl-medium-0", "mse-w8-medium-0",
-                                                    "mse-rank_pairwise-medium-0"]
+                                                    "mse-rank_pairwise-medium-0", "mse-ds-medium-0",
+                                                    "mse-oqs_own-medium-0", "mse-oqs_target-medium-0"]
+    assert [t.name for t in catalogue.shared_teachers] == [
+        "stand-from-stand+walk-medium-deterministic-0", "walk-from-stand+walk-medium-deterministic-0",
+        "stand-from-walk-medium-deterministic-0", "walk-from-stand-medium-deterministic-0"]
     assert [s.name for s in catalogue.mop_students()] == ["mse-medium-0", "q-medium-0", "kl-medium-0"]
     assert catalogue.teacher_seed == 0 and catalogue.teacher_actors == ("deterministic", "gaussian")
 
@@ -92,12 +102,14 @@ def test_run_names_groups_and_files(catalogue):
 
 def test_kl_students_learn_from_gaussian_teachers_mse_and_q_from_deterministic_ones(catalogue):
     for student in catalogue.students:
+        if student.variant == "ds":  # data sharing: the teachers on U_j D_{j->i}
+            continue
         actor = "gaussian" if student.loss == "kl" else "deterministic"
         assert student.teachers == tuple(TeacherRun(task, "medium", actor, 0) for task in TASKS)
         assert set(student.teachers) <= set(catalogue.teachers)  # every teacher a student needs is trained
 
 
-def test_eval_jobs_cover_every_policy_and_the_cross_task_teachers(catalogue):
+def test_eval_jobs_cover_every_policy_and_the_cross_task_teachers(plain_catalogue):
     def teacher(task, actor):
         return Path(f"data/teachers/medium-{actor}/{task}-medium-{actor}-0.pt")
 
@@ -115,8 +127,8 @@ def test_eval_jobs_cover_every_policy_and_the_cross_task_teachers(catalogue):
     for recipe in ("mse-w8", "mse-rank_pairwise"):
         checkpoint = Path(f"data/students/{recipe}-medium/{recipe}-medium-0.pt")
         expected += [Job(f"student_{recipe}_medium", 0, checkpoint, task, task) for task in TASKS]
-    assert catalogue.eval_jobs() == expected
-    assert catalogue.cross_task_teachers() == [TeacherRun("stand", "medium", "deterministic", 0),
+    assert plain_catalogue.eval_jobs() == expected
+    assert plain_catalogue.cross_task_teachers() == [TeacherRun("stand", "medium", "deterministic", 0),
                                                TeacherRun("walk", "medium", "deterministic", 0)]
 
 
@@ -135,9 +147,9 @@ def test_only_gaussian_students_sample_when_asked(catalogue):
     assert catalogue.sample_seed(kl, "stand") != catalogue.sample_seed(kl, "walk")
 
 
-def test_references_and_student_comparisons(catalogue):
+def test_references_and_student_comparisons(plain_catalogue):
     deterministic = {task: Reference("teacher_medium_deterministic", 0) for task in TASKS}
-    assert catalogue.references() == {
+    assert plain_catalogue.references() == {
         "multitask_medium": {task: Reference("teacher_medium_deterministic") for task in TASKS},  # every seed's mean
         "student_mse_medium": deterministic,
         "student_q_medium": deterministic,
@@ -145,7 +157,7 @@ def test_references_and_student_comparisons(catalogue):
         "student_mse-w8_medium": deterministic,
         "student_mse-rank_pairwise_medium": deterministic,
     }
-    assert catalogue.student_comparisons() == [("student_mse_medium", "student_q_medium"),
+    assert plain_catalogue.student_comparisons() == [("student_mse_medium", "student_q_medium"),
                                                ("student_mse_medium", "student_kl_medium"),
                                                ("student_q_medium", "student_kl_medium"),
                                                ("student_mse-w8_medium", "student_mse_medium"),
@@ -154,7 +166,8 @@ def test_references_and_student_comparisons(catalogue):
 
 def test_a_mixed_pairing_maps_its_levels_per_task(tiny_params):
     params = _with(tiny_params, study={"levels": ["expert", "medium"]},
-                   distill={"pairings": ["expert+medium", "medium"], "seeds": [0, 1], "losses": ["mse", "kl"]})
+                   distill={"pairings": ["expert+medium", "medium"], "seeds": [0, 1], "losses": ["mse", "kl"]},
+                   data_sharing={"levels": []})
     catalogue = build_catalogue(params)
     assert [t.name for t in catalogue.teachers[:4]] == ["stand-expert-deterministic-0", "stand-expert-gaussian-0",
                                                         "stand-medium-deterministic-0", "stand-medium-gaussian-0"]
@@ -201,6 +214,42 @@ def test_the_teacher_seed_students_learn_from(tiny_params):
     assert all(j.train_seed == 1 for j in cross)
 
 
+def test_data_sharing_runs_their_teachers_files_and_eval_jobs(catalogue):
+    """DS: task i's teacher on U_j D_{j->i}; OQS: task i's teachers on D_{j->i}, j != i, and MOP's for j = i."""
+    ds, _, oqs_stand, _ = catalogue.shared_teachers
+    assert ds.data_tasks == ("stand", "walk") and ds.sharing == "ds" and ds.group == "teacher_ds_medium_deterministic"
+    assert ds.datasets == (Path("data/datasets/stand-medium.hdf5"), Path("data/datasets/walk-medium.hdf5"))
+    assert ds.relabels == (Path("data/relabelled/stand-medium.hdf5"), Path("data/relabelled/walk-medium.hdf5"))
+    assert ds.paths.checkpoint == Path("data/teachers/ds-medium-deterministic/"
+                                       "stand-from-stand+walk-medium-deterministic-0.pt")
+    assert oqs_stand.sharing == "oqs" and oqs_stand.group == "teacher_from_walk_medium_deterministic"
+    assert oqs_stand.datasets == (Path("data/datasets/walk-medium.hdf5"),)
+    assert oqs_stand.batch == "oqs-medium-deterministic"
+    assert set(catalogue.shared_teacher_batches()) == {"ds-medium-deterministic", "oqs-medium-deterministic"}
+    plain = catalogue.teachers[0]
+    assert plain.sharing == "" and plain.datasets == (plain.dataset,)  # MOP's teachers are unchanged
+    students = {s.variant: s for s in catalogue.sharing_students()}
+    assert set(students) == {"ds", "oqs_own", "oqs_target"}
+    assert students["ds"].teachers == catalogue.shared_teachers[:2] and not students["ds"].candidates
+    own = students["oqs_own"]
+    assert [t.name for t in own.teachers] == ["stand-medium-deterministic-0", "walk-medium-deterministic-0"]
+    assert [[t.name for t in c] for c in own.candidates] == [
+        ["stand-medium-deterministic-0", "stand-from-walk-medium-deterministic-0"],
+        ["walk-from-stand-medium-deterministic-0", "walk-medium-deterministic-0"]]
+    assert len(own.all_teachers) == 4 and own.state_datasets == own.datasets == ds.datasets
+    assert own.group == "student_mse-oqs_own_medium" and own.batch == "mse-oqs_own-medium"
+    jobs = [(j.group, j.eval_task) for j in catalogue.eval_jobs() if "_ds_" in j.group or "_from_" in j.group]
+    assert jobs == [("teacher_ds_medium_deterministic", "stand"), ("teacher_from_walk_medium_deterministic", "stand"),
+                    ("teacher_ds_medium_deterministic", "walk"), ("teacher_from_stand_medium_deterministic", "walk")]
+    assert ("student_mse-oqs_target_medium", "student_mse_medium") in catalogue.student_comparisons()
+    assert catalogue.references()["student_mse-ds_medium"]["walk"].group == "teacher_ds_medium_deterministic"
+
+
+def test_no_data_sharing_runs_when_the_section_is_empty(tiny_params):
+    catalogue = build_catalogue(_with(tiny_params, data_sharing={"levels": []}))
+    assert catalogue.shared_teachers == () and catalogue.sharing_students() == []
+
+
 def test_transfer_tasks_add_cross_task_jobs_only(tiny_params):
     catalogue = build_catalogue(tiny_params)
     plain = catalogue.eval_jobs()
@@ -213,7 +262,7 @@ def test_transfer_tasks_add_cross_task_jobs_only(tiny_params):
 
 def test_no_cross_task_jobs_without_deterministic_teachers(tiny_params):
     params = _with(tiny_params, train_teachers={"actors": ["gaussian"]}, distill={"losses": ["kl"]},
-                   common_structure={"widths": [], "ranking_losses": []})
+                   common_structure={"widths": [], "ranking_losses": []}, data_sharing={"levels": []})
     catalogue = build_catalogue(params)
     assert catalogue.cross_task_teachers() == []
     assert not [j for j in catalogue.eval_jobs() if is_cross_group(j.group)]
@@ -230,7 +279,8 @@ def test_common_structure_variants_need_deterministic_teachers_and_a_distill_pai
         build_catalogue(_with(tiny_params, common_structure={"ranking_losses": ["ndcg"]}))
     with pytest.raises(ConfigError, match="common_structure.widths: expected a list of positive integers"):
         build_catalogue(_with(tiny_params, common_structure={"widths": [0]}))
-    none = build_catalogue(_with(tiny_params, common_structure={"widths": [], "ranking_losses": []}))
+    none = build_catalogue(_with(tiny_params, common_structure={"widths": [], "ranking_losses": []},
+                                 data_sharing={"levels": []}))
     assert none.variant_students() == [] and len(none.students) == 3
 
 

@@ -10,17 +10,25 @@ import numpy as np
 import pytest
 import torch
 
+from mop_core.agents.pbrl import PBRLConfig
 from mop_core.config import ConfigError
 from mop_core.data import read_dataset
 from mop_core.distill.distiller import DistillConfig, Distiller
 from mop_core.distill.losses import gaussian_kl_per_state, mse_per_state, q_per_state, reduce_ensemble
-from mop_core.distill.run import StudentSources, distill_student, distill_students, load_student, student_policy
-from mop_core.distill.states import TaskStates, offline_states, online_states, task_states
+from mop_core.distill.run import (
+    StudentSources,
+    distill_student,
+    distill_students,
+    load_student,
+    student_policy,
+    union_states,
+)
+from mop_core.distill.states import TaskStates, offline_states, online_states, q_switch_states, task_states
 from mop_core.distill.student import Student, StudentConfig, StudentGroup
 from mop_core.envs import WalkerEnv
 from mop_core.nn import DeterministicActor, EnsembleCritic, GaussianActor
 from mop_core.schedule import TrainSchedule
-from mop_core.teachers import load_teacher
+from mop_core.teachers import Teacher, load_teacher
 from mop_core.training import RunPaths
 
 TINY = StudentConfig(hidden_sizes=(16, 16))
@@ -490,3 +498,64 @@ def test_interrupted_distillation_resumes_to_the_same_student(tiny_teachers, tmp
     a = load_student(tmp_path / "a" / "student.pt").student.state_dict()
     b = load_student(tmp_path / "b" / "student.pt").student.state_dict()
     assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+# ---- data sharing (thesis 6.4): union states and offline Q-switch targets ---------------------------
+def _candidate(seed: int, source: str) -> Teacher:
+    torch.manual_seed(seed)
+    config = PBRLConfig(hidden_sizes=(8,), ensemble_size=3)
+    return Teacher("stand", "medium", 0, config, DeterministicActor(24, 6, (8,)).requires_grad_(False),
+                   EnsembleCritic(24, 6, (8,), 3).requires_grad_(False), source_task=source)
+
+
+@pytest.mark.parametrize("judge", ["own", "target"])
+def test_q_switch_labels_each_state_with_the_highest_valued_candidate_action(judge):
+    """argmax_j Q_j(s, pi_j(s)) (min over the ensemble) state by state, judged by each candidate's own
+    critics or all by the first (the target task's own teacher); the win shares sum to 1."""
+    candidates = [_candidate(1, "stand"), _candidate(2, "walk"), _candidate(3, "run")]
+    judges = candidates if judge == "own" else [candidates[0]] * 3
+    states = torch.randn(200, 24, generator=torch.Generator().manual_seed(0)).numpy()
+    target = q_switch_states("stand", states, candidates, judges, "min", {"source": "test"}, chunk=64)
+    obs = torch.as_tensor(states)
+    for k in range(len(states)):
+        values = [float(j.critic(obs[k:k + 1], c.actor(obs[k:k + 1])).min()) for c, j in zip(candidates, judges)]
+        best = int(np.argmax(values))
+        torch.testing.assert_close(target.teacher_actions[k], candidates[best].actor(obs[k:k + 1])[0])
+    shares = target.source["q_switch"]
+    assert list(shares) == ["stand", "walk", "run"] and sum(shares.values()) == pytest.approx(1.0)
+    assert sum(v > 0 for v in shares.values()) >= 2  # the switch does switch on random states
+    assert target.source["source"] == "test" and target.teacher_std is None
+
+
+def test_q_switch_with_one_candidate_is_that_teachers_action():
+    only = _candidate(1, "stand")
+    states = torch.randn(50, 24).numpy()
+    target = q_switch_states("stand", states, [only], [only], "min", {})
+    torch.testing.assert_close(target.teacher_actions, only.actor(torch.as_tensor(states)))
+    assert target.source["q_switch"] == {"stand": 1.0}
+    with pytest.raises(ValueError, match="one judge per candidate"):
+        q_switch_states("stand", states, [only], [], "min", {})
+
+
+def test_union_states_are_every_files_observations_in_order(tiny_teachers):
+    _, datasets = tiny_teachers
+    files = [datasets["stand"], datasets["walk"]]
+    union = union_states(files, 0, np.random.default_rng(0))
+    expected = np.concatenate([read_dataset(f).arrays["observations"] for f in files]).astype(np.float32)
+    np.testing.assert_array_equal(union, expected)
+    subset = union_states(files, 30, np.random.default_rng(0))
+    assert len(subset) == 30 and {tuple(r) for r in subset} <= {tuple(r) for r in expected}
+
+
+def test_data_sharing_students_learn_every_task_on_the_union(tiny_teachers, tmp_path):
+    """DS: both tasks' teachers label the same union of states (the states of the two datasets)."""
+    teachers, datasets = tiny_teachers
+    files = (datasets["stand"], datasets["walk"])
+    sources = StudentSources(("stand", "walk"), (teachers["stand", "deterministic"], teachers["walk", "deterministic"]),
+                             files, state_datasets=files)
+    config = DistillConfig(loss="mse", student=TINY, learning_rate=1e-3, batch_size=16)
+    metrics = distill_student(sources, config, SCHEDULE, 50, 0, 0, _paths(tmp_path))
+    checkpoint = torch.load(tmp_path / "student.pt", weights_only=False)
+    n = sum(len(read_dataset(d).arrays["observations"]) for d in (datasets["stand"], datasets["walk"]))
+    assert [s["source"] for s in checkpoint["states"]] == ["offline_union"] * 2
+    assert [s["states"] for s in checkpoint["states"]] == [n, n] and "q_switch" not in metrics

@@ -77,6 +77,10 @@ REPEATED = [
     ("train_multitask.seeds", [1, 1], "train_multitask.seeds: expected a list without repeats"),
     ("train_multitask.levels", ["expert"], "train_multitask.levels[0]: expected one of study.levels"),
     ("eval.transfer_tasks", ["stand_still", "stand_still"], "eval.transfer_tasks: tasks must not repeat"),
+    ("data_sharing.levels", ["expert"], "data_sharing.levels[0]: expected one of study.levels"),
+    ("data_sharing.teachers", ["ds"], "data_sharing.students[1]: expected its oqs teachers in teachers"),
+    ("data_sharing.teachers", ["ds", "cds"], "data_sharing.teachers[1]: expected one of ds, oqs"),
+    ("data_sharing.students", ["ds", "ds"], "data_sharing.students: expected a list without repeats"),
     ("eval.transfer_tasks", ["walk"], "eval.transfer_tasks[0]: expected a task outside study.tasks"),
     ("eval.transfer_tasks", ["sit"], "eval.transfer_tasks[0]: unknown task 'sit'"),
 ]

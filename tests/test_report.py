@@ -155,3 +155,33 @@ def test_learning_curve_band_is_the_t_interval_over_seeds_at_common_steps():
     single = seed_band(curves[:1], "return_mean")
     assert single["ci_low"] is None and single["mean"] == [1.0, 2.0, 9.0]
     assert seed_band(curves, "missing") is None
+
+
+def test_the_data_sharing_section_shows_figure_6_9_table_6_2_and_the_q_switch_shares(tmp_path):
+    from mop_core.report_sharing import sharing_section
+    results = _full_results()
+    evaluation = results.evaluation
+    for task, other in (("stand", "walk"), ("walk", "stand")):
+        evaluation[task] |= {"teacher_ds_medium_deterministic": _entry(500.0),
+                             f"teacher_from_{other}_medium_deterministic": _entry(300.0),
+                             "student_mse-ds_medium": _entry(480.0, 3, "training_seed", (0, 1, 2)),
+                             "student_mse-oqs_own_medium": _entry(350.0, 3, "training_seed", (0, 1, 2))}
+    shares = {"stand": {"stand": 0.7, "walk": 0.3}, "walk": {"stand": 0.1, "walk": 0.9}}
+    results.variants = [Run({"loss": "mse", "variant": variant, "pairing": "medium"}, seed,
+                            {"q_switch": shares} if variant == "oqs_own" else {}, [])
+                        for variant in ("ds", "oqs_own") for seed in (0, 1, 2)]
+    layer = results.shared["groups"]["mse_medium"]["pairs"]["stand-walk"]["layer1"]
+    results.shared["groups"]["mse-ds_medium"] = {"students": 3, "pairs": {"stand-walk": {
+        "layer1": layer | {"per_state_tau_a_mean": 0.61}, "layer2": layer | {"per_state_tau_a_mean": 0.72}}}}
+    markdown = sharing_section(results, tmp_path / "fig", "fig/")
+    assert (tmp_path / "fig" / "sharing.png").read_bytes()[:4] == b"\x89PNG"
+    assert "| medium | stand | DS teacher | 500.0 [490.0, 510.0] (n=30 episodes) | 50.0 [49.0, 51.0] | 1.24 |" \
+        in markdown  # / the MOP teacher's 404.55
+    assert "| medium | walk | OQS teacher on D_stand->walk | 300.0" in markdown
+    assert "| medium | stand | DS student | 480.0 [470.0, 490.0] (n=3 seeds)" in markdown
+    assert "| medium | DS | stand-walk | 1 | 0.610 +- 0.101 | 0.617 +- 0.139 | 0.081 | 0.520 | 3 |" in markdown
+    assert "| medium | DS | stand-walk | 2 | 0.720 +- 0.101 | 0.617 +- 0.139 | 0.081 | 0.670 | 3 |" in markdown
+    assert "| medium | MOP | stand-walk | 1 | 0.452 +- 0.101 | 0.617 +- 0.139 | 0.081 | 0.067 | 2 |" in markdown
+    assert "| medium | OQS (own critics) | stand | D_stand->stand: 0.700, D_walk->stand: 0.300 |" in markdown
+    empty = sharing_section(_full_results(), tmp_path / "fig", "fig/")
+    assert "Not part of this run: the data-sharing students" in empty

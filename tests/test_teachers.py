@@ -11,6 +11,7 @@ import torch
 
 from mop_core.agents.pbrl import PBRLConfig, PessimisticCritic
 from mop_core.agents.pbrl_group import PBRLGroup
+from mop_core.data import TransitionTensors
 from mop_core.relabel import RelabelConfig, relabel_dataset
 from mop_core.schedule import TrainSchedule
 from mop_core.teachers import (
@@ -18,6 +19,7 @@ from mop_core.teachers import (
     TeacherConfig,
     TeacherJob,
     load_source,
+    load_sources,
     load_teacher,
     train_multitask,
     train_teacher,
@@ -187,3 +189,51 @@ def test_multitask_critics_see_only_their_own_tasks_rewards(sources, tmp_path, m
     assert [len(r) for r in per_critic] == [10 * 16, 10 * 16]
     assert set(per_critic[0]) <= stand_rewards and set(per_critic[1]) <= walk_rewards
     assert not set(per_critic[1]) <= stand_rewards  # walk rewards of the expert data are not stand's
+
+
+# ---- data sharing (thesis 6.4): teachers on the union of relabelled datasets -----------------------
+def test_a_union_of_relabelled_datasets_is_their_concatenation_under_one_reward(sources):
+    """U_j D_{j->walk}: the medium file with its walk rewards, then the expert file with its walk rewards."""
+    medium = DataSource(sources["stand"].dataset, sources["stand"].relabel, "walk")
+    expert = sources["walk"]
+    union, summary = load_sources([medium, expert], 50)
+    parts = [load_source(s, 50)[0] for s in (medium, expert)]
+    for field in ("observations", "actions", "rewards", "next_observations", "terminals", "timeouts"):
+        torch.testing.assert_close(getattr(union, field), torch.cat([getattr(p, field) for p in parts]))
+    singles = [load_source(s, 50)[1] for s in (medium, expert)]
+    assert summary["transitions"] == sum(s["transitions"] for s in singles)
+    assert summary["content_sha256"] == "+".join(s["content_sha256"] for s in singles)
+    assert summary["reward_task"] == "walk" and summary["source_task"] == "stand+stand"
+    assert summary["level"] == "medium+expert"
+    episodes = [s["complete_episodes"] for s in singles]
+    expected = sum(s["return_mean"] * n for s, n in zip(singles, episodes)) / sum(episodes)
+    assert summary["return_mean"] == pytest.approx(expected) and summary["complete_episodes"] == sum(episodes)
+    with pytest.raises(ValueError, match="one reward task"):
+        load_sources([medium, sources["stand"]], 50)
+
+
+def test_a_data_sharing_teacher_draws_its_batches_from_every_file_of_its_union(sources, tmp_path, monkeypatch):
+    seen: list[torch.Tensor] = []
+    original = TransitionTensors.sample
+
+    def record(self, batch_size, generator):
+        batch = original(self, batch_size, generator)
+        seen.append(batch.observations.clone())
+        return batch
+
+    monkeypatch.setattr(TransitionTensors, "sample", record)
+    medium = DataSource(sources["stand"].dataset, sources["stand"].relabel, "walk")
+    job = TeacherJob("walk", medium, 0, _paths(tmp_path / "ds"), (sources["walk"],))
+    assert job.sources == (medium, sources["walk"])
+    schedule = TrainSchedule(steps=30, eval_every=30, eval_episodes=1, final_eval_episodes=1, checkpoint_every=30,
+                             rollout_envs=1)
+    record_ = train_teacher_group([job], _config(schedule=schedule), 0, tmp_path / "r.pt", None)[0]
+    assert record_["task"] == "walk"
+    drawn = torch.cat(seen)
+    first = load_source(medium, 50)[0].observations
+    rows = {tuple(row.tolist()) for row in first}
+    from_first = sum(tuple(row.tolist()) in rows for row in drawn)
+    assert 0 < from_first < len(drawn)  # both files' transitions are drawn
+    checkpoint = torch.load(job.paths.checkpoint, weights_only=False)
+    assert checkpoint["dataset"]["content_sha256"].count("+") == 1
+    assert load_teacher(job.paths.checkpoint).source_task == "stand+stand"

@@ -23,12 +23,12 @@ from mop_core.config import from_mapping, require, to_dict
 from mop_core.data import read_dataset_attrs, read_json
 from mop_core.distill.distiller import DistillConfig, Distiller
 from mop_core.distill.losses import LOSSES
-from mop_core.distill.states import TaskStates, offline_states, online_states, task_states
+from mop_core.distill.states import TaskStates, offline_states, online_states, q_switch_states, task_states
 from mop_core.distill.student import Student
 from mop_core.envs import ACT_DIM, OBS_DIM
 from mop_core.nn import numpy_policy, with_task_id
 from mop_core.rollout import policies_returns_and_states
-from mop_core.runs import StudentRun
+from mop_core.runs import Q_SWITCH_JUDGES, StudentRun
 from mop_core.runtime import derive_seeds
 from mop_core.schedule import TrainSchedule
 from mop_core.step_metrics import run_key, split_runs
@@ -43,17 +43,30 @@ STUDENT_KIND = "mop_student"
 
 @dataclass(frozen=True)
 class StudentSources:
-    """What one student learns from: per task (in task-id order) a teacher and its offline dataset."""
+    """What one student learns from: per task (in task-id order) a teacher and its offline dataset.
+
+    Data sharing (thesis 6.4): ``state_datasets`` set, every task's states are the union of these
+    files (D = U_i D_i) and every task's teacher labels every state; ``candidates`` set (OQS), task
+    i's label at s is the action of ``argmax_j Q_ij(s, pi_ij(s))`` over its candidate teachers
+    (candidates[i][j] trained on D_{j->i}), Q_ij each candidate's own critics (``judge`` own, the
+    thesis's rule) or task i's own teacher's (``judge`` target, QMP's)."""
 
     tasks: tuple[str, ...]
     teachers: tuple[Path, ...]  # teacher checkpoints (train_teachers), teachers[i] trained for tasks[i]
     datasets: tuple[Path, ...]  # offline datasets, datasets[i] the one teachers[i] was trained on
+    state_datasets: tuple[Path, ...] = ()  # the union every task's states come from; () = datasets[i] each
+    candidates: tuple[tuple[Path, ...], ...] = ()  # OQS: per task, a checkpoint per source task j
+    judge: str = "own"  # OQS: own | target
 
     def __post_init__(self) -> None:
         check_task_list(self.tasks, "tasks")
         for name in ("teachers", "datasets"):
             if len(getattr(self, name)) != len(self.tasks):
                 raise ValueError(f"{name}: expected one per task ({len(self.tasks)}), got {len(getattr(self, name))}")
+        if self.candidates and len(self.candidates) != len(self.tasks):
+            raise ValueError(f"candidates: expected one list per task ({len(self.tasks)}), got {len(self.candidates)}")
+        if self.judge not in Q_SWITCH_JUDGES:
+            raise ValueError(f"judge: expected one of {Q_SWITCH_JUDGES}, got {self.judge!r}")
 
 
 def load_teachers(sources: StudentSources, loss: str) -> list[Teacher]:
@@ -70,13 +83,47 @@ def load_teachers(sources: StudentSources, loss: str) -> list[Teacher]:
     return teachers
 
 
+def load_candidates(sources: StudentSources) -> list[list[Teacher]]:
+    """OQS: per task its candidate teachers (checked: each trained for that task, deterministic)."""
+    out = []
+    for task, paths in zip(sources.tasks, sources.candidates):
+        teachers = [load_teacher(path) for path in paths]
+        for path, teacher in zip(paths, teachers):
+            if teacher.task != task or teacher.config.actor != "deterministic":
+                raise ValueError(f"{path}: an OQS candidate must be a deterministic teacher for {task!r}, got a "
+                                 f"{teacher.config.actor} one for {teacher.task!r}")
+        out.append(teachers)
+    return out
+
+
+def union_states(datasets: Sequence[Path], num_states: int, rng: np.random.Generator) -> np.ndarray:
+    """The states of every file of ``datasets``, in order (``num_states`` > 0: that many of the union,
+    drawn without replacement)."""
+    states = np.concatenate([offline_states(d, 0, rng) for d in datasets])
+    if 0 < num_states < len(states):
+        states = states[np.sort(rng.choice(len(states), size=num_states, replace=False))]
+    return states
+
+
 def build_states(sources: StudentSources, teachers: Sequence[Teacher], config: DistillConfig, episode_length: int,
-                 seed: int, rollout_envs: int, device: torch.device) -> list[TaskStates]:
-    """Each task's distillation states (offline or online) with its teacher's outputs cached."""
+                 seed: int, rollout_envs: int, device: torch.device,
+                 candidates: Sequence[Sequence[Teacher]] = ()) -> list[TaskStates]:
+    """Each task's distillation states (offline or online) with its teacher's outputs cached (OQS:
+    the Q-switch's choice among ``candidates``)."""
     result = []
-    for task, teacher, dataset in zip(sources.tasks, teachers, sources.datasets):
+    shared = None
+    if sources.state_datasets:  # data sharing: one union, the same states for every task
+        require(config.state_source == "offline", "state_source", "offline for data-sharing students (they learn "
+                "on the union of the offline datasets)", config.state_source)
+        shared = union_states(sources.state_datasets, config.num_states,
+                              np.random.default_rng(derive_seeds([seed, "union"], ("subset",))["subset"]))
+    for i, (task, teacher, dataset) in enumerate(zip(sources.tasks, teachers, sources.datasets)):
         task_seeds = derive_seeds([seed, task], ("subset", "episodes"))
-        if config.state_source == "offline":
+        if shared is not None:
+            states = shared
+            source = {"source": "offline_union", "datasets": [str(d) for d in sources.state_datasets],
+                      "states": len(states)}
+        elif config.state_source == "offline":
             states = offline_states(dataset, config.num_states, np.random.default_rng(task_seeds["subset"]))
             source = {"source": "offline", "dataset": str(dataset), "states": len(states)}
         else:
@@ -86,18 +133,23 @@ def build_states(sources: StudentSources, teachers: Sequence[Teacher], config: D
             source = {"source": "online", "episodes": episodes, "first_seed": seeds[0], "states": len(states)}
         require(config.batch_size <= len(states), "batch_size",
                 f"at most the {len(states)} states of {task} ({source.get('dataset', 'online')})", config.batch_size)
-        result.append(task_states(task, states, teacher.actor, source, device))
+        if candidates:
+            judges = candidates[i] if sources.judge == "own" else [teacher] * len(candidates[i])
+            result.append(q_switch_states(task, states, candidates[i], judges, config.q_reduction, source, device))
+        else:
+            result.append(task_states(task, states, teacher.actor, source, device))
     return result
 
 
 def group_states(sources: StudentSources, teachers: Sequence[Teacher], config: DistillConfig, episode_length: int,
-                 seeds: Sequence[int], rollout_envs: int, device: torch.device) -> list[list[TaskStates]]:
+                 seeds: Sequence[int], rollout_envs: int, device: torch.device,
+                 candidates: Sequence[Sequence[Teacher]] = ()) -> list[list[TaskStates]]:
     """Each run's distillation states (:func:`build_states` with the run's seed); the whole offline
     dataset is the same for every seed: built once and shared."""
-    first = build_states(sources, teachers, config, episode_length, seeds[0], rollout_envs, device)
+    first = build_states(sources, teachers, config, episode_length, seeds[0], rollout_envs, device, candidates)
     if config.state_source == "offline" and config.num_states == 0:
         return [first] * len(seeds)
-    return [first] + [build_states(sources, teachers, config, episode_length, seed, rollout_envs, device)
+    return [first] + [build_states(sources, teachers, config, episode_length, seed, rollout_envs, device, candidates)
                       for seed in seeds[1:]]
 
 
@@ -181,6 +233,13 @@ def distill_student(sources: StudentSources, config: DistillConfig, schedule: Tr
                             paths.timing, device, progress, name)[0]
 
 
+def q_switch_record(targets: Sequence[TaskStates]) -> dict:
+    """OQS: per task, the share of its states whose label each candidate teacher gave ({} otherwise)."""
+    if not any("q_switch" in t.source for t in targets):
+        return {}
+    return {"q_switch": {t.task: t.source["q_switch"] for t in targets}}
+
+
 def conflict_rows(distiller: Distiller, seed: int) -> list[dict[str, float]]:
     """Each run's gradient-conflict columns now (none with one task), on states of a stream of their
     own per step: measuring changes no training draw, and a resumed run measures what an
@@ -205,6 +264,7 @@ def distill_students(sources: StudentSources, config: DistillConfig, schedule: T
             f"distinct seeds, one per output path ({len(paths)})", list(seeds))
     device = torch.device(device)
     teachers = load_teachers(sources, config.loss)
+    candidates = load_candidates(sources) if sources.candidates else []
     levels = [t.level for t in teachers]
     # What differs between students of a pairing (initialisation, distillation states) derives from the
     # student seed; what every student of the pairing must share (evaluation episodes, probe states)
@@ -214,7 +274,7 @@ def distill_students(sources: StudentSources, config: DistillConfig, schedule: T
     shared = derive_seeds([study_seed, "distill", *sources.tasks, *levels], ("eval", "final_eval", "probe",
                                                                            "conflict"))
     targets = group_states(sources, teachers, config, episode_length, [s["states"] for s in run_seeds],
-                           schedule.rollout_envs, device)
+                           schedule.rollout_envs, device, candidates)
     critics = [t.critic for t in teachers] if LOSSES[config.loss].needs_critics else None
     distiller = Distiller(config, targets, OBS_DIM, ACT_DIM, [s["agent"] for s in run_seeds], critics, device,
                           schedule.steps)
@@ -259,6 +319,8 @@ def distill_students(sources: StudentSources, config: DistillConfig, schedule: T
     fingerprint = run_fingerprint({"tasks": sources.tasks, "config": to_dict(config), "schedule": to_dict(schedule),
                                    "seeds": list(seeds), "study_seed": study_seed,
                                    "teachers": [t.actor_sha256 for t in teachers],
+                                   "candidates": [[c.actor_sha256 for c in per_task] for per_task in candidates],
+                                   "judge": sources.judge if candidates else None,
                                    "states": [[t.source for t in run] for run in targets]})
     group_curve, seconds, resumed_from = train_loop(distiller, distiller.update, evaluate, schedule, shared, None,
                                                     resume, fingerprint, f"distill {name}", progress)
@@ -274,6 +336,7 @@ def distill_students(sources: StudentSources, config: DistillConfig, schedule: T
                          "gradient_steps": schedule.steps, "trained_with_seeds": list(seeds)}
         if track_tau:
             metrics["per_state_tau"] = tau_record(config, fixed_probes, tau_at_init[r], curve[-1])
+        metrics |= q_switch_record(targets[r])
         metrics |= final_returns_record(sources.tasks, teachers, [finals[i][r] for i in range(len(sources.tasks))])
         student_state = {k: v.cpu() for k, v in student.state_dict().items()}
         checkpoint = {
@@ -323,9 +386,9 @@ def check_student_files(runs: list[StudentRun], study_seed: int, teacher_config:
     """Before any compute: each teacher was trained as the study now says (task, level, seed, PBRL
     settings, dataset content; ``teacher_config(actor)`` gives the expected settings), and the files
     are the ones the student_inputs stage recorded (``record``, the DVC dependency of these students)."""
-    for t in runs[0].teachers:
+    for t in runs[0].all_teachers:
         check_teacher_checkpoint(t.paths.checkpoint, t.task, t.level, t.seed, study_seed, teacher_config(t.actor),
-                                 read_dataset_attrs(t.dataset)["content_sha256"])
+                                 "+".join(str(read_dataset_attrs(d)["content_sha256"]) for d in t.datasets))
     check_student_inputs(runs, read_json(record), record)
 
 

@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 from mop_core.data import read_dataset
+from mop_core.distill.losses import reduce_ensemble
 from mop_core.nn import GaussianActor
 from mop_core.rollout import collect_episodes
 
@@ -84,3 +85,37 @@ def task_states(task: str, states: np.ndarray, teacher_actor: torch.nn.Module, s
     actions, std = teacher_outputs(teacher_actor, tensor)
     device = torch.device(device)
     return TaskStates(task, tensor.to(device), actions.to(device), None if std is None else std.to(device), source)
+
+
+@torch.no_grad()
+def q_switch_states(task: str, states: np.ndarray, candidates: Sequence, judges: Sequence, reduction: str,
+                    source: dict, device: torch.device | str = "cpu", chunk: int = 65536) -> TaskStates:
+    """Offline Q-switch targets (thesis 6.4.3) for one task: at every state s the action of
+    ``argmax_j Q_j(s, pi_j(s))`` over the candidate teachers (``candidates[j]``: actor ``pi_j``,
+    trained on D_{j->i}), each action judged by ``judges[j]``'s critic ensemble reduced over its
+    members by ``reduction`` (min: what PBRL's actor maximises). ``judges = candidates`` is the
+    thesis's rule (each candidate by its own critics, whose scales were never coordinated);
+    every judge the target task's own teacher is QMP's. ``source`` gains ``q_switch``: per candidate
+    (by the task whose data it learned from) the share of states whose label it gave."""
+    if len(candidates) != len(judges) or not candidates:
+        raise ValueError(f"candidates, judges: expected one judge per candidate, got {len(candidates)} and "
+                         f"{len(judges)}")
+    tensor = torch.as_tensor(states, dtype=torch.float32)
+    actions, winners = [], []
+    for part in tensor.split(chunk):
+        proposed = torch.stack([teacher_outputs(c.actor, part)[0] for c in candidates])  # [J, B, act]
+        values = torch.stack([reduce_ensemble(judge.critic(part, a), reduction) for judge, a in zip(judges, proposed)])
+        best = values.argmax(0)  # [B]; ties: the first candidate (task order)
+        actions.append(proposed[best, torch.arange(len(part))])
+        winners.append(best)
+    best = torch.cat(winners)
+    names = [_data_name(c, j) for j, c in enumerate(candidates)]
+    shares = {name: float((best == j).float().mean()) for j, name in enumerate(names)}
+    device = torch.device(device)
+    return TaskStates(task, tensor.to(device), torch.cat(actions).to(device), None,
+                      source | {"q_switch": shares})
+
+
+def _data_name(teacher, index: int) -> str:
+    """A candidate's label in the win shares: the task(s) whose data it learned from, else its position."""
+    return str(getattr(teacher, "source_task", "") or f"candidate{index}")
