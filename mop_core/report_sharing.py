@@ -42,6 +42,15 @@ def student_rows(results: StudyResults, level: str, task: str) -> list[tuple[str
     return [(label, group) for label, group in rows if eval_entry(results, task, group)]
 
 
+def short_label(label: str) -> str:
+    """The figure's x tick of a table row: MOP, DS, OQS data (the teacher on another task's data), OQS own,
+    OQS target (the students by judge)."""
+    if label.startswith("OQS teacher"):
+        return "OQS data j->i"
+    return {"OQS (own critics) student": "OQS own", "OQS (target critic) student": "OQS target"}.get(
+        label, label.removesuffix(" teacher").removesuffix(" student"))
+
+
 def point(entry: dict) -> tuple[float, float | None, float | None]:
     return entry["mean"], entry.get("ci_low"), entry.get("ci_high")
 
@@ -57,7 +66,7 @@ def returns_lines(results: StudyResults, levels: Sequence[str], figure: Path, li
                 series = panels.setdefault(f"return on {task}", {}).setdefault(f"{level} {kind}", [])
                 for label, group in members:
                     entry = eval_entry(results, task, group)
-                    series.append((label.removesuffix(" teacher").removesuffix(" student"), *point(entry)))
+                    series.append((short_label(label), *point(entry)))
                     ratio = fmt(entry["mean"] / mop["mean"], 2) if mop else "n/a"
                     rows.append([level, task, label, fmt_ci(entry), fmt_normalised(entry), ratio])
     interval_panels(figure, panels, "approach", {name: "episode return (eval stage)" for name in panels},
@@ -67,7 +76,8 @@ def returns_lines(results: StudyResults, levels: Sequence[str], figure: Path, li
             "Teachers are trained once (interval over their evaluation episodes); students are groups of training "
             "seeds (interval over seeds, n in each cell). MOP teacher: D_i->i (the train_teachers teacher, reused as "
             "OQS's i = j candidate); DS teacher: the union over j of D_j->i; OQS teacher on D_j->i: task i's "
-            "rewards on task j's data. DS and OQS students learn on the union of the tasks' datasets.", ""]
+            "rewards on task j's data (in the figure: 'OQS data j->i'; the OQS students by judge: 'OQS own', 'OQS "
+            "target'). DS and OQS students learn on the union of the tasks' datasets.", ""]
 
 
 def tau_lines(results: StudyResults, levels: Sequence[str]) -> list[str]:
