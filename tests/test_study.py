@@ -205,3 +205,14 @@ def test_positive_threads():
 def test_the_teacher_seed_must_be_an_integer(tiny_params, value):
     with pytest.raises(ConfigError, match=r"^distill.teacher_seed: "):
         distill_grid(_set(tiny_params, "distill.teacher_seed", value), study_config(tiny_params), LOSS_ACTORS)
+
+
+def test_the_data_sharing_names_the_params_check_knows_are_the_runs_own():
+    """study.py checks data_sharing without importing the run kinds (collect reads study.py): its name
+    lists must stay equal to mop_core.runs'."""
+    from mop_core.runs import Q_SWITCH_JUDGES, SHARING_KINDS, sharing_variant
+    from mop_core.study import SHARING_STUDENTS, SHARING_TEACHERS
+
+    assert SHARING_TEACHERS == SHARING_KINDS
+    expected = {sharing_variant("ds"): "ds"} | {sharing_variant("oqs", judge): "oqs" for judge in Q_SWITCH_JUDGES}
+    assert SHARING_STUDENTS == expected
