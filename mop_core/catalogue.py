@@ -28,6 +28,8 @@ from mop_core.runs import (
     cross_group,
     ranking_variant,
     sharing_teachers,
+    single_task_of,
+    single_variant,
     width_variant,
 )
 from mop_core.runtime import derive_seeds
@@ -149,6 +151,14 @@ class Catalogue:
         """The common-structure and data-sharing variants' students (thesis 6.3, 6.4)."""
         return [run for run in self.students if run.variant]
 
+    def single_task_students(self) -> dict[str, dict[int, list[StudentRun]]]:
+        """The no-sharing reference: pairing -> seed -> that seed's single-task students (task order)."""
+        out: dict[str, dict[int, list[StudentRun]]] = {}
+        for run in self.students:
+            if run.single_task:
+                out.setdefault(run.pairing, {}).setdefault(run.seed, []).append(run)
+        return out
+
     def sharing_students(self) -> list[StudentRun]:
         """The data-sharing students (thesis 6.4: DS, OQS)."""
         return [run for run in self.students if run.shared_states]
@@ -199,11 +209,24 @@ def make_sharing_student(variant: str, level: str, seed: int, tasks: tuple[str, 
     return StudentRun("mse", level, seed, own, variant, candidates, shared_states=True)
 
 
+def make_structure_student(variant: str, pairing: str, seed: int, tasks: tuple[str, ...], levels: tuple[str, ...],
+                           teacher_seed: int) -> StudentRun:
+    """A common-structure MSE student (thesis 6.3) of the study's ``tasks`` (the pairing's ``levels``,
+    one per task); a single-task variant (``single_<task>``) learns from that task's teacher alone."""
+    task = single_task_of(variant)
+    if task is not None:
+        i = tasks.index(task)
+        tasks, levels = (task,), (levels[i],)
+    return make_student("mse", pairing, seed, tasks, levels, teacher_seed, variant)
+
+
 def structure_variants(params: Mapping[str, Any]) -> tuple[str, tuple[str, ...]]:
-    """The common_structure section's pairing and student variants (widths, then ranking losses)."""
+    """The common_structure section's pairing and student variants (widths, ranking losses, then the
+    single-task students)."""
     grid = structure_grid(params, study_config(params))
     return grid.pairing, (tuple(width_variant(w) for w in grid.widths)
-                          + tuple(ranking_variant(loss) for loss in grid.ranking_losses))
+                          + tuple(ranking_variant(loss) for loss in grid.ranking_losses)
+                          + tuple(single_variant(task) for task in grid.single_task))
 
 
 def build_catalogue(params: Mapping[str, Any]) -> Catalogue:
@@ -217,8 +240,8 @@ def build_catalogue(params: Mapping[str, Any]) -> Catalogue:
                                   pairing_levels(pairing, study, "distill.pairings"), grid.teacher_seed)
                      for loss in grid.losses for pairing in grid.pairings for seed in grid.seeds)
     structure_pairing, variants = structure_variants(params)
-    students += tuple(make_student("mse", structure_pairing, seed, study.tasks,
-                                   pairing_levels(structure_pairing, study), grid.teacher_seed, variant)
+    students += tuple(make_structure_student(variant, structure_pairing, seed, study.tasks,
+                                             pairing_levels(structure_pairing, study), grid.teacher_seed)
                       for variant in variants for seed in grid.seeds)
     sharing = sharing_grid(params, study)
     shared_teachers = tuple(t for level in sharing.levels

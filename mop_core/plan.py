@@ -16,7 +16,8 @@ are the exceptions it models); a student group of R seeds costs the time per upd
 between the measured R = 1 and R = 8; the KL loss costs what MSE does (the same network, no critic);
 collect steps one walker per TD3 update at the single-environment rate; the common-structure students
 (distill_width, distill_ranking) cost what plain MSE students do (no rate is measured for other widths
-or for the ranking regulariser: a lower bound for width 512 and for the regulariser); a data-sharing
+or for the ranking regulariser: a lower bound for width 512 and for the regulariser) and a single-task
+student (distill_single) its task's share of a multi-task student's update; a data-sharing
 teacher (train_shared_teachers) costs what a deterministic teacher does (its data is larger, its
 updates are not) and a data-sharing student what a plain MSE student does. It is an
 estimate from rates measured in isolation, not a measurement of the stages.
@@ -123,6 +124,10 @@ def stage_hours(params: Mapping[str, Any], rates: Rates) -> dict[str, tuple[int,
         entries = len(structure.get(key, []))
         out[stage] = (entries * seeds, entries * per_entry / 3600)
         students += entries * seeds
+    singles = len(structure.get("single_task", []))  # one task per student: its share of a multi-task update
+    out["distill_single"] = (singles * seeds, singles * (
+        d_sched["steps"] * rates.student_seconds_per_update("mse", seeds) / max(len(tasks), 1)
+        + seeds * _evaluation_steps(d_sched, length, 1) / rates.rollout) / 3600)
 
     sharing = params.get("data_sharing", {})
     sharing_levels, kinds = sharing.get("levels", []), sharing.get("teachers", [])
@@ -138,10 +143,11 @@ def stage_hours(params: Mapping[str, Any], rates: Rates) -> dict[str, tuple[int,
                 + shared_teachers
                 + len(tasks) * len(levels) * len(teachers["actors"]) * len(teachers["seeds"])
                 + len(levels) * len(tasks) * (len(tasks) - 1)  # cross-task teachers
-                + count * len(tasks) + students * len(tasks))
+                + count * len(tasks) + students * len(tasks) + singles * seeds)
     out["eval"] = (policies, policies * params["eval"]["episodes"] * length / rates.rollout / 3600)
     shared = params["shared_computation"]
-    out["shared_computation"] = (students, students * len(tasks) * shared["episodes"] * length / rates.rollout / 3600)
+    out["shared_computation"] = (students + singles * seeds, (students * len(tasks) + singles * seeds)
+                                 * shared["episodes"] * length / rates.rollout / 3600)
     return out
 
 

@@ -493,9 +493,10 @@ def shared_section(results: StudyResults) -> str:
     ordered = sorted(shared["groups"], key=lambda g: study_order.index(g) if g in study_order else len(study_order))
     for group in ordered:  # the study's loss order (mse, q, kl), not the JSON file's sorted keys
         summary = shared["groups"][group]
+        label = f"{group} (no sharing: single-task students)" if "no_sharing" in summary else group
         for pair, layers in summary["pairs"].items():
             for layer, row in layers.items():
-                rows.append([group, pair, layer.removeprefix("layer"),
+                rows.append([label, pair, layer.removeprefix("layer"),
                              f"{fmt(row['per_state_tau_a_mean'], 3)} +- {fmt(row['per_state_tau_a_sd'], 3)}",
                              f"{fmt(row['per_state_tau_b_mean'], 3)} +- {fmt(row['per_state_tau_b_sd'], 3)}",
                              f"{tau_pair(row, 'average_tau')} (sd {fmt(row['average_tau_a_seed_sd'], 3)} / "
@@ -518,7 +519,12 @@ def shared_section(results: StudyResults) -> str:
             "the activation matrices under the two ids over the same states (6.2.4's proposal). In brackets: sd "
             "over the group's students. 'untrained copy' rows: the same measures of a freshly initialised network "
             "of the same shape on the same states (the group's first student's), the level a number should be "
-            "read against.", "",
+            "read against. 'no sharing' rows (`common_structure.single_task`): per seed, each task's student "
+            "distilled on that task alone, on the states it visits itself; network i stands for task id i, so the "
+            "measures compare two networks that share no weight: per-state and average tau are then chance "
+            "agreement of neurons that correspond by index only, while CKA and Procrustes (invariant to rotating "
+            "the neurons) say how alike two unshared solutions are anyway; a multi-task student's number means "
+            "shared computation only where it is above both references.", "",
             table(["student group", "tasks", "layer", "per-state tau-a (mean +- sd)", "per-state tau-b (mean +- sd)",
                    "average tau-a / tau-b", "linear CKA", "Procrustes", "debiased CKA",
                    "task selectivity: mean / share >= 0.5", "students"], rows), "",

@@ -14,7 +14,8 @@ from typing import Sequence
 
 from mop_core.plots import interval_panels
 from mop_core.report import Run, StudyResults, eval_entry, fmt, fmt_ci, fmt_normalised, not_run, table
-from mop_core.runs import structure_group, student_group, student_recipe, teacher_group
+from mop_core.report_structure import fmt_interval, seed_interval
+from mop_core.runs import no_sharing_group, structure_group, student_group, student_recipe, teacher_group
 
 # Thesis Table 6.2 (walk x stand students, tau-a per layer, one seed): the reference the measured
 # rows sit next to. Expert x Expert's OQS row has no approach label in the thesis's text; it is the
@@ -80,12 +81,24 @@ def returns_lines(results: StudyResults, levels: Sequence[str], figure: Path, li
             "target'). DS and OQS students learn on the union of the tasks' datasets.", ""]
 
 
+def seed_tau(shared: dict, summary: dict, pair: str, layer: str, variant: str) -> str:
+    """The group's per-state tau: mean over its students [95% CI over them] (no interval under 3)."""
+    values = [shared["students"][name]["pairs"][pair][layer][f"per_state_tau_{variant}"]["mean"]
+              for name in summary.get("members", []) if name in shared.get("students", {})]
+    if not values:
+        return fmt(summary["pairs"][pair][layer][f"per_state_tau_{variant}_mean"], 3)
+    return fmt_interval(seed_interval(values))
+
+
 def tau_lines(results: StudyResults, levels: Sequence[str]) -> list[str]:
-    groups = (results.shared or {}).get("groups", {})
+    shared = results.shared or {}
+    groups = shared.get("groups", {})
     rows = []
     for level in levels:
-        for variant, label in STUDENT_LABELS.items():
-            summary = groups.get(structure_group(student_recipe("mse", variant), level))
+        labelled = [(label, groups.get(structure_group(student_recipe("mse", variant), level)))
+                    for variant, label in STUDENT_LABELS.items()]
+        labelled += [("no sharing (single-task students)", groups.get(no_sharing_group(level)))]
+        for label, summary in labelled:
             if not summary:
                 continue
             thesis = THESIS_TABLE_6_2.get(level, {}).get(label.split(" ")[0])
@@ -93,17 +106,21 @@ def tau_lines(results: StudyResults, levels: Sequence[str]) -> list[str]:
                 for index, (layer, row) in enumerate(layers.items()):
                     reference = fmt(thesis[index], 3) if thesis and index < len(thesis) else "n/a"
                     rows.append([level, label, pair, layer.removeprefix("layer"),
-                                 f"{fmt(row['per_state_tau_a_mean'], 3)} +- {fmt(row['per_state_tau_a_sd'], 3)}",
-                                 f"{fmt(row['per_state_tau_b_mean'], 3)} +- {fmt(row['per_state_tau_b_sd'], 3)}",
+                                 seed_tau(shared, summary, pair, layer, "a"), fmt(row["per_state_tau_a_sd"], 3),
+                                 seed_tau(shared, summary, pair, layer, "b"),
                                  fmt(row.get("selectivity_mean"), 3), reference, summary["students"]])
     if not rows:
         return [not_run("Table 6.2", "It needs the shared_computation stage (`dvc repro shared_computation`)."), ""]
-    return [table(["level", "students", "task pair", "layer", "per-state tau-a (mean +- sd over states)",
-                   "per-state tau-b", "task selectivity", "thesis tau-a", "students"], rows), "",
+    return [table(["level", "students", "task pair", "layer", "per-state tau-a [95% CI over students]",
+                   "sd over states", "per-state tau-b [95% CI]", "task selectivity", "thesis tau-a", "students"],
+                  rows), "",
             "Table 6.2: per-state Kendall tau between a layer's activations under the two task ids on the states "
-            "the students visit (section 7's measure, averaged over each group's students); tau-a is the thesis's "
-            "formula. Task selectivity: the mean share of a neuron's activation variance explained by the task id "
-            "(section 7). Thesis column: its Table 6.2 (one seed, walk x stand).", ""]
+            "the students visit (section 7's measure): per student the mean over its states; the cell is the mean "
+            "over the group's students (training seeds) with a Student-t 95% interval over them (n in the last "
+            "column; none under 3), next to the sd over one student's states. tau-a is the thesis's formula. Task "
+            "selectivity: the mean share of a neuron's activation variance explained by the task id (section 7). "
+            "'no sharing': per seed, the two single-task students as if they were one student's two ids (section "
+            "7's null). Thesis column: its Table 6.2 (one seed, walk x stand).", ""]
 
 
 def q_switch_lines(results: StudyResults, levels: Sequence[str]) -> list[str]:

@@ -11,8 +11,10 @@
   from (one per study task); every seed of a (loss, pairing) trains in one distill entry, as one
   vectorised group (its ``batch``). A common-structure variant (thesis 6.3: a width, a ranking
   regulariser) is a student with a ``variant``, trained in its own distill_width / distill_ranking
-  entry; so are the data-sharing students (6.4: ``ds``, ``oqs_own``, ``oqs_target``), which learn from
-  other teachers on the union of the tasks' datasets (distill_sharing entries).
+  entry; so are the single-task students (``single_<task>``: one task's teacher alone, the no-sharing
+  reference of shared_computation; distill_single entries) and the data-sharing students (6.4: ``ds``,
+  ``oqs_own``, ``oqs_target``), which learn from other teachers on the union of the tasks' datasets
+  (distill_sharing entries).
 
 Each run has a ``name`` (its files), a ``group`` (the eval stage's key: the runs whose returns form
 one confidence interval, e.g. every seed of a student) and its file paths (mop_core.layout). The
@@ -67,6 +69,7 @@ def multitask_group(level: str) -> str:
 
 
 WIDTH_PREFIX, RANKING_PREFIX = "w", "rank_"  # common-structure variants (thesis 6.3): mop_core.distill.variants
+SINGLE_PREFIX = "single_"  # students of one task alone: the no-sharing reference of shared_computation
 
 
 def width_variant(width: int) -> str:
@@ -77,6 +80,16 @@ def width_variant(width: int) -> str:
 def ranking_variant(loss: str) -> str:
     """The variant of students trained with the ranking regulariser of ranking loss ``loss`` (6.3.2)."""
     return f"{RANKING_PREFIX}{loss}"
+
+
+def single_variant(task: str) -> str:
+    """The variant of students distilled on ``task`` alone (its teacher, its dataset; one task id)."""
+    return f"{SINGLE_PREFIX}{task}"
+
+
+def single_task_of(variant: str) -> str | None:
+    """The task of a single-task variant (``single_<task>``), None for any other variant."""
+    return variant[len(SINGLE_PREFIX):] if variant.startswith(SINGLE_PREFIX) else None
 
 
 def student_recipe(loss: str, variant: str = "") -> str:
@@ -97,6 +110,12 @@ def student_batch(recipe: str, pairing: str) -> str:
 def structure_group(recipe: str, pairing: str) -> str:
     """The shared_computation stage's key of a student group (Table 6.1 rows)."""
     return f"{recipe}_{pairing}"
+
+
+def no_sharing_group(pairing: str) -> str:
+    """The shared_computation key of the no-sharing reference: each task's single-task students of
+    one seed measured against each other's as if they were one student's two task ids."""
+    return structure_group(student_recipe("mse", SINGLE_PREFIX.rstrip("_")), pairing)
 
 
 def cross_group(level: str, teacher_task: str) -> str:
@@ -229,6 +248,11 @@ class StudentRun:
     @property
     def recipe(self) -> str:
         return student_recipe(self.loss, self.variant)
+
+    @property
+    def single_task(self) -> bool:
+        """Distilled on one task alone (the no-sharing reference), not a multi-task student."""
+        return single_task_of(self.variant) is not None
 
     @property
     def name(self) -> str:

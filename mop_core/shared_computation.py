@@ -19,9 +19,13 @@
      layer (mop_core.similarity).
 3. :func:`summarise_students`: a group of students trained with different seeds -> mean and
    standard deviation over seeds of every figure (Table 6.1 rows).
-4. :func:`untrained_like`: the same measures for an untrained network of the student's shape on
-   the same states, the reference a number is read against: with a one-hot task id as 2 of 26
-   inputs, a random network's per-state tau is already high (~0.8 here).
+4. Two references a number is read against, measured the same way on the same kind of states:
+   - :func:`untrained_like`: an untrained network of the student's shape: with a one-hot task id
+     as 2 of 26 inputs, a random network's per-state tau is already high (~0.8 here);
+   - :func:`separate_hidden`: two students distilled each on one task alone, "task id i" being
+     network i (the null for "no sharing": neurons of separate networks correspond by index only,
+     so per-state and average tau measure chance agreement, while CKA and Procrustes, invariant to
+     a rotation of the neurons, measure how alike the two representations are anyway).
 """
 
 from __future__ import annotations
@@ -30,7 +34,7 @@ import copy
 import itertools
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -43,8 +47,8 @@ from mop_core.structure import (
     TAU_VARIANTS,
     average_comparison,
     hidden_activations,
+    kendall_tau,
     linear_cka,
-    per_state_comparison,
 )
 from mop_core.study import positive_threads, section
 
@@ -127,28 +131,52 @@ def _stats(values: torch.Tensor) -> dict:
             "states": int(len(values)), "undefined": int(len(values) - len(finite))}
 
 
+Hidden = Callable[[torch.Tensor, int], list]  # (states, task id) -> post-ReLU activations per hidden layer
+
+
+def student_hidden(student) -> Hidden:
+    """One multi-task student's activations under each task id."""
+    return lambda obs, task: hidden_activations(student, obs, task)
+
+
+def separate_hidden(students: Sequence) -> Hidden:
+    """The no-sharing reference: "task id i" is the activation of ``students[i]``, a network distilled
+    on task i alone (its only id, 0); the same measures then compare two networks that share no
+    weight, the value a multi-task student's numbers mean nothing below."""
+    return lambda obs, task: hidden_activations(students[task], obs, 0)
+
+
 @torch.no_grad()
 def measure_student(student, tasks: Sequence[str], states: Sequence[torch.Tensor]) -> dict:
     """Per-state, average and CKA comparisons of one student (module docstring); ``states[i]`` were
     visited acting as ``tasks[i]``. Per pair ``"<task_i>-<task_j>"`` and layer (1-based order)."""
+    return measure_networks(student_hidden(student), tasks, states)
+
+
+@torch.no_grad()
+def measure_networks(hidden: Hidden, tasks: Sequence[str], states: Sequence[torch.Tensor]) -> dict:
+    """:func:`measure_student` for any ``hidden(states, task id)``: one student's task ids
+    (:func:`student_hidden`) or separately trained single-task networks (:func:`separate_hidden`)."""
     if len(tasks) != len(states) or len(tasks) < 2:
         raise ValueError(f"states: expected one state batch per task for >= 2 tasks, got {len(states)} for {tasks}")
-    own = [hidden_activations(student, obs, i) for i, obs in enumerate(states)]  # own[i][layer]
-    per_state = [per_state_comparison(student, obs, i) for i, obs in enumerate(states)]  # [i][layer][j]
+    m = len(tasks)
+    own = [hidden(obs, i) for i, obs in enumerate(states)]  # own[i][layer]
+    under = [[own[i] if j == i else hidden(obs, j) for j in range(m)] for i, obs in enumerate(states)]
     averages = average_comparison([[acts.mean(0) for acts in layers] for layers in own])
     layers = len(own[0])
     pairs = {}
-    for i, j in itertools.combinations(range(len(tasks)), 2):
+    for i, j in itertools.combinations(range(m), 2):
         rows = {}
         for layer in range(layers):
             row = {}
-            for variant in TAU_VARIANTS:  # s ~ D_i u D_j
-                taus = torch.cat([per_state[i][layer][j][variant], per_state[j][layer][i][variant]])
-                row[f"per_state_tau_{variant}"] = _stats(taus)
+            # s ~ D_i u D_j: per state, the layer under the state's own id against it under the other id
+            per_state = [kendall_tau(own[i][layer], under[i][j][layer]), kendall_tau(own[j][layer], under[j][i][layer])]
+            for variant in TAU_VARIANTS:
+                row[f"per_state_tau_{variant}"] = _stats(torch.cat([taus[variant] for taus in per_state]))
             for variant in TAU_VARIANTS:
                 row[f"average_tau_{variant}"] = float(averages[layer][variant][i, j])
-            under_i = torch.cat([own[i][layer], hidden_activations(student, states[j], i)[layer]])
-            under_j = torch.cat([hidden_activations(student, states[i], j)[layer], own[j][layer]])
+            under_i = torch.cat([own[i][layer], under[j][i][layer]])
+            under_j = torch.cat([under[i][j][layer], own[j][layer]])
             row["linear_cka"] = linear_cka(under_i, under_j)
             row |= beyond_cka(under_i, under_j)
             rows[layer_key(layer)] = row

@@ -2,8 +2,10 @@
 (thesis 6.2, Table 6.1, Figures 6.3b and 6.4b), for every student group of a catalogue.
 
 Every student acts online on each of its tasks; its post-ReLU activations on the visited states are
-compared across task ids (:func:`mop_core.shared_computation.measure_student`); the same measures of
-an untrained copy of each group's first student on its states are the reference.
+compared across task ids (:func:`mop_core.shared_computation.measure_student`). Two references: the
+same measures of an untrained copy of each group's first student on its states, and of each seed's
+single-task students (``common_structure.single_task``) measured against each other, network i
+standing for task id i (the no-sharing null, group ``mse-single_<pairing>``).
 """
 
 from __future__ import annotations
@@ -17,13 +19,16 @@ from mop_core.catalogue import Catalogue
 from mop_core.data import read_json, write_json
 from mop_core.distill.run import load_student
 from mop_core.plots import metric_curves, read_curve, sorted_activations
+from mop_core.runs import no_sharing_group
 from mop_core.runtime import configure_compute, derive_seeds
 from mop_core.shared_computation import (
     TIES_NOTE,
     SharedComputationConfig,
     collect_visited,
+    measure_networks,
     measure_student,
     rollout_jobs,
+    separate_hidden,
     summarise_students,
     untrained_like,
 )
@@ -35,25 +40,29 @@ def compact(record: dict) -> dict:
 
 def measure_catalogue(catalogue: Catalogue, config: SharedComputationConfig, threads: int, episode_length: int,
                       out: Path, progress: bool = False) -> tuple[dict, dict]:
-    """Measure every student; write out/students/<name>.json and out/figures/<name>.png; return the
-    metrics record (Table 6.1 per group: mean over its seeds, and per student) and the seconds taken
-    (``seconds``, ``rollout_seconds``: the stage's timing record)."""
+    """Measure every multi-task student, and per seed each pairing's single-task students against each
+    other (the no-sharing reference); write out/students/<name>.json and out/figures/<name>.png;
+    return the metrics record (Table 6.1 per group: mean over its seeds, and per student) and the
+    seconds taken (``seconds``, ``rollout_seconds``: the stage's timing record)."""
     groups = {members[0].structure_group: members
-              for members in catalogue.student_groups().values()}
+              for members in catalogue.student_groups().values() if not members[0].single_task}
+    singles = catalogue.single_task_students()
     runs = [run for members in groups.values() for run in members]
+    single_runs = [run for by_seed in singles.values() for members in by_seed.values() for run in members]
     first_student = {members[0].name: group for group, members in groups.items()}
     started = time.perf_counter()
-    students = {run.name: load_student(run.paths.checkpoint) for run in runs}
+    students = {run.name: load_student(run.paths.checkpoint) for run in runs + single_runs}
     # each student's rollouts in its checkpoint's task order (its task ids), not study.tasks' order
-    jobs = rollout_jobs({run.name: (run.paths.checkpoint, students[run.name].tasks) for run in runs}, catalogue.tasks)
-    visited = collect_visited(jobs, catalogue.study_seed, episode_length, config, progress)
+    jobs = [job for run in runs + single_runs
+            for job in rollout_jobs({run.name: (run.paths.checkpoint, students[run.name].tasks)}, run.tasks)]
+    flat = iter(collect_visited(jobs, catalogue.study_seed, episode_length, config, progress))
+    visited = {run.name: [next(flat) for _ in students[run.name].tasks] for run in runs + single_runs}
     rollout_seconds = time.perf_counter() - started
     configure_compute(threads)
 
     records, untrained = {}, {}
-    for n, run in enumerate(runs):
-        loaded = students[run.name]
-        mine = visited[n * len(loaded.tasks):(n + 1) * len(loaded.tasks)]
+    for run in runs:
+        loaded, mine = students[run.name], visited[run.name]
         states = [torch.as_tensor(obs) for obs, _ in mine]
         record = measure_student(loaded.student, loaded.tasks, states)
         record["student_return"] = {task: float(returns.mean()) for task, (_, returns) in zip(loaded.tasks, mine)}
@@ -63,15 +72,35 @@ def measure_catalogue(catalogue: Catalogue, config: SharedComputationConfig, thr
             seed = derive_seeds([catalogue.study_seed, "shared_computation", "untrained", group], ("init",))["init"]
             reference = measure_student(untrained_like(loaded.student, seed), loaded.tasks, states)
             untrained[group] = {"student_states": run.name, "pairs": reference["pairs"]}
-        write_json(out / "students" / f"{run.name}.json", record)
-        sorted_activations(out / "figures" / f"{run.name}.png", record["mean_activations"],
-                           f"{run.name}: mean activation per neuron over {config.episodes} episodes per task")
+        _write_student(out, run.name, record, config.episodes)
+    summaries = {group: summarise_students([records[run.name] for run in members])
+                 | {"untrained": untrained[group], "members": [run.name for run in members]}
+                 for group, members in groups.items()}
+    for pairing, by_seed in singles.items():  # the no-sharing reference: network i stands for task id i
+        names = []
+        for seed, members in by_seed.items():
+            name = f"{no_sharing_group(pairing)}-{seed}"
+            mine = [visited[run.name][0] for run in members]
+            record = measure_networks(separate_hidden([students[run.name].student for run in members]),
+                                      [run.tasks[0] for run in members], [torch.as_tensor(obs) for obs, _ in mine])
+            record["student_return"] = {run.tasks[0]: float(returns.mean()) for run, (_, returns) in zip(members, mine)}
+            record["networks"] = [run.name for run in members]
+            records[name] = record
+            names.append(name)
+            _write_student(out, name, record, config.episodes)
+        summaries[no_sharing_group(pairing)] = summarise_students([records[name] for name in names]) | {
+            "members": names,
+            "no_sharing": "each task's own single-task student (one seed per record), network i standing for id i"}
     seconds = time.perf_counter() - started
-    return {"note": TIES_NOTE, "episodes_per_task": config.episodes,
-            "groups": {group: summarise_students([records[run.name] for run in members])
-                       | {"untrained": untrained[group]} for group, members in groups.items()},
+    return {"note": TIES_NOTE, "episodes_per_task": config.episodes, "groups": summaries,
             "students": {name: compact(record) for name, record in records.items()}}, {
-        "seconds": seconds, "rollout_seconds": round(rollout_seconds, 1), "students": len(runs)}
+        "seconds": seconds, "rollout_seconds": round(rollout_seconds, 1), "students": len(runs) + len(single_runs)}
+
+
+def _write_student(out: Path, name: str, record: dict, episodes: int) -> None:
+    write_json(out / "students" / f"{name}.json", record)
+    sorted_activations(out / "figures" / f"{name}.png", record["mean_activations"],
+                       f"{name}: mean activation per neuron over {episodes} episodes per task")
 
 
 def tau_during_training_figure(catalogue: Catalogue, path: Path) -> None:
@@ -96,10 +125,12 @@ def print_summary(metrics: dict, timing: dict) -> None:
     for group, summary in metrics["groups"].items():
         for pair, layers in summary["pairs"].items():
             for layer, row in layers.items():
-                ref = summary["untrained"]["pairs"][pair][layer]
+                ref = summary.get("untrained", {}).get("pairs", {}).get(pair, {}).get(layer)
+                against = (f"untrained tau-b: {ref['per_state_tau_b']['mean']:.3f}, {ref['average_tau_b']:.3f}" if ref
+                           else "no-sharing reference")
                 print(f"{group:16s} {pair:12s} {layer}: per-state tau-a/b {row['per_state_tau_a_mean']:.3f}/"
                       f"{row['per_state_tau_b_mean']:.3f}  average tau-a/b {row['average_tau_a']:.3f}/"
                       f"{row['average_tau_b']:.3f}  linear CKA {row['linear_cka']:.3f}  ({summary['students']} "
-                      f"students; untrained tau-b: {ref['per_state_tau_b']['mean']:.3f}, {ref['average_tau_b']:.3f})")
+                      f"students; {against})")
     print(f"shared_computation: {len(metrics['students'])} students in {timing['seconds']:.0f} s "
           f"(rollouts {timing['rollout_seconds']:.0f} s)")

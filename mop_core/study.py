@@ -103,12 +103,15 @@ class DistillGrid:
 @dataclass(frozen=True)
 class StructureGrid:
     """The common_structure section (thesis 6.3): MSE students of one distill pairing next to plain
-    MOP, one group of ``distill.seeds`` per width (6.3.1) and per ranking loss (6.3.2). Empty lists
-    train none."""
+    MOP, one group of ``distill.seeds`` per width (6.3.1) and per ranking loss (6.3.2); and per task of
+    ``single_task``, students distilled on that task alone (its teacher and dataset), the "no
+    sharing" reference of the shared-computation measures: two networks that share no weight.
+    Empty lists train none."""
 
     pairing: str
     widths: tuple[int, ...] = ()
     ranking_losses: tuple[str, ...] = ()
+    single_task: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         require(all(isinstance(w, int) and not isinstance(w, bool) and w >= 1 for w in self.widths), "widths",
@@ -118,6 +121,9 @@ class StructureGrid:
             require(loss in RANKING_LOSS_NAMES, f"ranking_losses[{i}]", f"one of {', '.join(RANKING_LOSS_NAMES)}",
                     loss)
         require_unique(self.ranking_losses, "ranking_losses")
+        require_unique(self.single_task, "single_task")
+        require(len(self.single_task) != 1, "single_task", "[] or two or more study tasks (the reference compares "
+                "a pair of single-task students)", list(self.single_task))
 
 
 SHARING_TEACHERS = ("ds", "oqs")  # mop_core.runs.SHARING_KINDS (tested equal)
@@ -208,7 +214,10 @@ def structure_grid(params: Mapping[str, Any], study: StudyConfig) -> StructureGr
     require(levels in pairings, "common_structure.pairing", f"one of distill.pairings "
             f"{section(params, 'distill').get('pairings')} (the MOP students the variants are compared with)",
             grid.pairing)
-    if grid.widths or grid.ranking_losses:
+    for i, task in enumerate(grid.single_task):
+        require(task in study.tasks, f"common_structure.single_task[{i}]", f"one of study.tasks {list(study.tasks)}",
+                task)
+    if grid.widths or grid.ranking_losses or grid.single_task:
         actors = section(params, "train_teachers").get("actors", [])
         require("deterministic" in actors, "common_structure", "deterministic teachers in train_teachers.actors "
                 "(the variants are MSE students)", actors)

@@ -2,6 +2,7 @@
 
     python stages/distill.py --loss mse --pairing medium [--seeds 0 2]
     python stages/distill.py --loss mse --pairing medium --variant w16   (distill_width, distill_ranking)
+    python stages/distill.py --loss mse --pairing medium --variant single_stand   (distill_single)
 
 Trains one student per seed of ``distill.seeds`` (or of ``--seeds``, a subset: a group of one reruns a
 single seed) as one vectorised group (mop_core.distill.distiller.Distiller: each run its own
@@ -18,7 +19,9 @@ results/students/tau/<loss>-<pairing>/<name>/; and the group's timing results/ti
 ``--variant`` (w<width>, rank_<ranking loss>: mop_core.distill.variants) trains a common-structure
 variant of the students (thesis 6.3; the distill_width and distill_ranking entries): the same
 teachers, states and seeds as the plain students, one setting changed; its files use
-``<loss>-<variant>-<pairing>`` where the plain ones use ``<loss>-<pairing>``.
+``<loss>-<variant>-<pairing>`` where the plain ones use ``<loss>-<pairing>``. ``--variant single_<task>``
+(the distill_single entries) distils that task's teacher alone into a one-task student: the
+no-sharing reference the shared_computation stage measures the multi-task students against.
 
 ``--variant ds | oqs_own | oqs_target`` with ``--pairing <level>`` (the distill_sharing entries, thesis
 6.4, the data_sharing section) trains MSE students on the union of the tasks' datasets of that level:
@@ -32,7 +35,13 @@ import argparse
 
 from common import load_params, require_inputs, run_stage
 
-from mop_core.catalogue import LOSS_ACTORS, make_sharing_student, make_student, structure_variants
+from mop_core.catalogue import (
+    LOSS_ACTORS,
+    make_sharing_student,
+    make_structure_student,
+    make_student,
+    structure_variants,
+)
 from mop_core.config import ConfigError, keys_under, require
 from mop_core.data import read_json
 from mop_core.distill.distiller import distill_config
@@ -82,8 +91,12 @@ def main() -> None:
     if sharing_variant:
         runs = [make_sharing_student(args.variant, args.pairing, seed, study.tasks, grid.teacher_seed)
                 for seed in seeds]
+    elif args.variant:
+        require(args.loss == "mse", "--loss", "mse for the common_structure students", args.loss)
+        runs = [make_structure_student(args.variant, args.pairing, seed, study.tasks, levels, grid.teacher_seed)
+                for seed in seeds]
     else:
-        runs = [make_student(args.loss, args.pairing, seed, study.tasks, levels, grid.teacher_seed, args.variant)
+        runs = [make_student(args.loss, args.pairing, seed, study.tasks, levels, grid.teacher_seed)
                 for seed in seeds]
     batch = runs[0].batch
     device = resolve_device(study.device, "study.device")

@@ -26,6 +26,7 @@ from mop_core.runs import (
     TeacherRun,
     cross_group,
     is_cross_group,
+    no_sharing_group,
     structure_group,
 )
 from mop_core.runtime import derive_seeds
@@ -40,8 +41,8 @@ def catalogue(tiny_params):
 
 @pytest.fixture
 def plain_catalogue(tiny_params):
-    """The tiny study without its data-sharing runs (thesis 6.4: tested on their own below)."""
-    return build_catalogue(_with(tiny_params, data_sharing={"levels": []}))
+    """The tiny study without its data-sharing runs and single-task students (tested on their own below)."""
+    return build_catalogue(_with(tiny_params, data_sharing={"levels": []}, common_structure={"single_task": []}))
 
 
 def _with(params: dict, **sections) -> dict:
@@ -60,7 +61,8 @@ def test_the_tiny_study_has_these_runs_in_this_order(catalogue):
                                                     "walk-medium-deterministic-0", "walk-medium-gaussian-0"]
     assert catalogue.multitask == (MultitaskRun("medium", 0, TASKS),)
     assert [s.name for s in catalogue.students] == ["mse-medium-0", "q-medium-0", "kl-medium-0", "mse-w8-medium-0",
-                                                    "mse-rank_pairwise-medium-0", "mse-ds-medium-0",
+                                                    "mse-rank_pairwise-medium-0", "mse-single_stand-medium-0",
+                                                    "mse-single_walk-medium-0", "mse-ds-medium-0",
                                                     "mse-oqs_own-medium-0", "mse-oqs_target-medium-0"]
     assert [t.name for t in catalogue.shared_teachers] == [
         "stand-from-stand+walk-medium-deterministic-0", "walk-from-stand+walk-medium-deterministic-0",
@@ -105,7 +107,8 @@ def test_kl_students_learn_from_gaussian_teachers_mse_and_q_from_deterministic_o
         if student.variant == "ds":  # data sharing: the teachers on U_j D_{j->i}
             continue
         actor = "gaussian" if student.loss == "kl" else "deterministic"
-        assert student.teachers == tuple(TeacherRun(task, "medium", actor, 0) for task in TASKS)
+        tasks = TASKS if not student.single_task else (student.variant.removeprefix("single_"),)
+        assert student.teachers == tuple(TeacherRun(task, "medium", actor, 0) for task in tasks)
         assert set(student.teachers) <= set(catalogue.teachers)  # every teacher a student needs is trained
 
 
@@ -176,7 +179,9 @@ def test_a_mixed_pairing_maps_its_levels_per_task(tiny_params):
         "mse-expert+medium-0", "mse-expert+medium-1", "mse-medium-0", "mse-medium-1", "kl-expert+medium-0",
         "kl-expert+medium-1", "kl-medium-0", "kl-medium-1"]
     assert [s.name for s in catalogue.variant_students()] == [  # common_structure.pairing: medium
-        "mse-w8-medium-0", "mse-w8-medium-1", "mse-rank_pairwise-medium-0", "mse-rank_pairwise-medium-1"]
+        "mse-w8-medium-0", "mse-w8-medium-1", "mse-rank_pairwise-medium-0", "mse-rank_pairwise-medium-1",
+        "mse-single_stand-medium-0", "mse-single_stand-medium-1", "mse-single_walk-medium-0",
+        "mse-single_walk-medium-1"]
     mixed = catalogue.students[0]
     assert mixed.teachers == (TeacherRun("stand", "expert", "deterministic", 0),
                               TeacherRun("walk", "medium", "deterministic", 0))
@@ -193,10 +198,13 @@ def test_a_mixed_pairing_maps_its_levels_per_task(tiny_params):
     assert catalogue.student_comparisons() == [("student_mse_expert+medium", "student_kl_expert+medium"),
                                                ("student_mse_medium", "student_kl_medium"),
                                                ("student_mse-w8_medium", "student_mse_medium"),
-                                               ("student_mse-rank_pairwise_medium", "student_mse_medium")]
+                                               ("student_mse-rank_pairwise_medium", "student_mse_medium"),
+                                               ("student_mse-single_stand_medium", "student_mse_medium"),
+                                               ("student_mse-single_walk_medium", "student_mse_medium")]
     groups = catalogue.student_groups()
     assert list(groups) == ["student_mse_expert+medium", "student_mse_medium", "student_kl_expert+medium",
-                            "student_kl_medium", "student_mse-w8_medium", "student_mse-rank_pairwise_medium"]
+                            "student_kl_medium", "student_mse-w8_medium", "student_mse-rank_pairwise_medium",
+                            "student_mse-single_stand_medium", "student_mse-single_walk_medium"]
     assert [s.seed for s in groups["student_mse_expert+medium"]] == [0, 1]
     cross = [j for j in catalogue.eval_jobs() if is_cross_group(j.group)]
     assert [(j.group, j.eval_task) for j in cross] == [("cross_expert_stand", "walk"), ("cross_medium_stand", "walk"),
@@ -262,7 +270,8 @@ def test_transfer_tasks_add_cross_task_jobs_only(tiny_params):
 
 def test_no_cross_task_jobs_without_deterministic_teachers(tiny_params):
     params = _with(tiny_params, train_teachers={"actors": ["gaussian"]}, distill={"losses": ["kl"]},
-                   common_structure={"widths": [], "ranking_losses": []}, data_sharing={"levels": []})
+                   common_structure={"widths": [], "ranking_losses": [], "single_task": []},
+                   data_sharing={"levels": []})
     catalogue = build_catalogue(params)
     assert catalogue.cross_task_teachers() == []
     assert not [j for j in catalogue.eval_jobs() if is_cross_group(j.group)]
@@ -279,9 +288,38 @@ def test_common_structure_variants_need_deterministic_teachers_and_a_distill_pai
         build_catalogue(_with(tiny_params, common_structure={"ranking_losses": ["ndcg"]}))
     with pytest.raises(ConfigError, match="common_structure.widths: expected a list of positive integers"):
         build_catalogue(_with(tiny_params, common_structure={"widths": [0]}))
-    none = build_catalogue(_with(tiny_params, common_structure={"widths": [], "ranking_losses": []},
+    none = build_catalogue(_with(tiny_params, common_structure={"widths": [], "ranking_losses": [], "single_task": []},
                                  data_sharing={"levels": []}))
     assert none.variant_students() == [] and len(none.students) == 3
+
+
+def test_single_task_students_learn_from_their_task_alone_and_form_the_no_sharing_pairs(catalogue):
+    stand, walk = [run for run in catalogue.students if run.single_task]
+    assert stand == StudentRun("mse", "medium", 0, (TeacherRun("stand", "medium", "deterministic", 0),),
+                               "single_stand")
+    assert (stand.tasks, walk.tasks) == (("stand",), ("walk",))
+    assert (walk.batch, walk.group, walk.structure_group) == (
+        "mse-single_walk-medium", "student_mse-single_walk_medium", "mse-single_walk_medium")
+    assert walk.datasets == (Path("data/datasets/walk-medium.hdf5"),)
+    assert catalogue.single_task_students() == {"medium": {0: [stand, walk]}}
+    jobs = [(j.group, j.eval_task, j.task_id) for j in catalogue.eval_jobs()
+            if j.group.startswith("student_mse-single")]
+    assert jobs == [("student_mse-single_stand_medium", "stand", "stand"),
+                    ("student_mse-single_walk_medium", "walk", "walk")]
+    assert catalogue.references()["student_mse-single_walk_medium"] == {
+        "walk": Reference("teacher_medium_deterministic", 0)}
+    assert ("student_mse-single_walk_medium", "student_mse_medium") in catalogue.student_comparisons()
+    assert no_sharing_group("medium") == "mse-single_medium"
+
+
+@pytest.mark.parametrize("single, error", [
+    (["stand"], r"common_structure.single_task: expected \[\] or two or more study tasks"),
+    (["stand", "run"], r"common_structure.single_task\[1\]: expected one of study.tasks"),
+    (["walk", "walk"], r"common_structure.single_task"),
+])
+def test_single_task_errors_name_the_parameter(tiny_params, single, error):
+    with pytest.raises(ConfigError, match=error):
+        build_catalogue(_with(tiny_params, common_structure={"single_task": single}))
 
 
 def test_make_student():

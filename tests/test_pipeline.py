@@ -68,6 +68,25 @@ def test_repro_trains_the_data_sharing_teachers_and_students(repo):
     assert {"mse-ds_medium", "mse-oqs_own_medium", "mse-oqs_target_medium"} <= set(shared["groups"])
 
 
+def test_repro_trains_single_task_students_as_the_no_sharing_reference(repo):
+    """common_structure.single_task: per task a one-task student group (distill_single), evaluated on its
+    task only, and per seed the pair measured as one student's two ids in shared_computation."""
+    for task in ("stand", "walk"):
+        batch = f"mse-single_{task}-medium"
+        payload = torch.load(repo / "data" / "students" / batch / f"{batch}-0.pt", weights_only=False)
+        assert payload["tasks"] == [task]
+        evaluation = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
+        assert evaluation[task][f"student_{batch.removesuffix('-medium')}_medium"]["n"] == 3
+        other = "walk" if task == "stand" else "stand"
+        assert f"student_{batch.removesuffix('-medium')}_medium" not in evaluation[other]
+    shared = json.loads((repo / "results" / "shared_computation" / "metrics.json").read_text())
+    null = shared["groups"]["mse-single_medium"]
+    assert null["members"] == ["mse-single_medium-0"] and "no_sharing" in null
+    assert list(null["pairs"]["stand-walk"]) == ["layer1", "layer2"]
+    assert shared["students"]["mse-single_medium-0"]["networks"] == ["mse-single_stand-medium-0",
+                                                                      "mse-single_walk-medium-0"]
+
+
 def test_repro_produces_datasets_teachers_and_metrics(repo):
     for task in ("stand", "walk"):
         for level in ("expert", "medium", "medium_replay"):
@@ -108,7 +127,7 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
         "student_mse_medium_vs_student_kl_medium", "student_q_medium_vs_student_kl_medium",
         "student_mse-w8_medium_vs_teachers", "student_mse-rank_pairwise_medium_vs_teachers",
         "student_mse-w8_medium_vs_student_mse_medium", "student_mse-rank_pairwise_medium_vs_student_mse_medium",
-        *(f"student_mse-{v}_medium_vs_{y}" for v in ("ds", "oqs_own", "oqs_target")
+        *(f"student_mse-{v}_medium_vs_{y}" for v in ("ds", "oqs_own", "oqs_target", "single_stand", "single_walk")
           for y in ("teachers", "student_mse_medium"))}
     assert all(0 <= a["ci_low"] <= a["value"] <= a["ci_high"] <= 1
                for a in aggregate["probability_of_improvement"].values())
@@ -169,7 +188,7 @@ def test_the_readme_shows_the_tested_commands():
 def test_metrics_show_holds_the_headline_numbers_and_the_timings_apart(repo):
     shown = json.loads(_run(["dvc", "metrics", "show", "--json"], repo).stdout)[""]["data"]
     assert all(path == "results/metrics.json" or path.startswith("results/timings/") for path in shown), shown
-    assert len([path for path in shown if path.startswith("results/timings/")]) == 17  # one per stage entry
+    assert len([path for path in shown if path.startswith("results/timings/")]) == 19  # one per stage entry
     headline = shown["results/metrics.json"]["data"]
     assert headline == json.loads((repo / "results" / "metrics.json").read_text())
     evaluation = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
@@ -187,7 +206,7 @@ def test_metrics_show_holds_the_headline_numbers_and_the_timings_apart(repo):
     rows = [line for line in table.splitlines() if line.strip()]
     assert "normalised_return.student_mse_medium.stand" in table and len(rows) == 3  # header, rule, one row
     timings = _run(_command(TIMINGS_SHOW, "--md"), repo).stdout
-    assert timings.count("results/timings/") == 17 and "normalised_return" not in timings
+    assert timings.count("results/timings/") == 19 and "normalised_return" not in timings
 
 
 def test_every_plot_renders_and_only_the_current_runs_are_drawn(repo):
@@ -326,7 +345,8 @@ def test_a_changed_teacher_makes_only_its_own_students_stale(repo):
 def test_exp_run_of_distill_param_reruns_only_distill_and_what_reads_students(repo):
     out = _run(["dvc", "exp", "run", "-S", "distill.learning_rate=0.002"], repo).stdout
     assert _stages_run(out) == {"params", "distill@mse-medium", "distill@q-medium", "distill@kl-medium",
-                                "distill_width@8", "distill_ranking@pairwise", "distill_sharing@medium-ds",
+                                "distill_width@8", "distill_ranking@pairwise", "distill_single@stand",
+                                "distill_single@walk", "distill_sharing@medium-ds",
                                 "distill_sharing@medium-oqs_own", "distill_sharing@medium-oqs_target", "eval",
                                 "shared_computation", "report"}
     metrics = json.loads((repo / "results" / "eval" / "metrics.json").read_text())

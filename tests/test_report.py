@@ -179,9 +179,22 @@ def test_the_data_sharing_section_shows_figure_6_9_table_6_2_and_the_q_switch_sh
         in markdown  # / the MOP teacher's 404.55
     assert "| medium | walk | OQS teacher on D_stand->walk | 300.0" in markdown
     assert "| medium | stand | DS student | 480.0 [470.0, 490.0] (n=3 seeds)" in markdown
-    assert "| medium | DS | stand-walk | 1 | 0.610 +- 0.101 | 0.617 +- 0.139 | 0.081 | 0.520 | 3 |" in markdown
-    assert "| medium | DS | stand-walk | 2 | 0.720 +- 0.101 | 0.617 +- 0.139 | 0.081 | 0.670 | 3 |" in markdown
-    assert "| medium | MOP | stand-walk | 1 | 0.452 +- 0.101 | 0.617 +- 0.139 | 0.081 | 0.067 | 2 |" in markdown
+    # without member records the group mean alone; with them, a t-interval over the students
+    assert "| medium | DS | stand-walk | 1 | 0.610 | 0.101 | 0.617 | 0.081 | 0.520 | 3 |" in markdown
+    assert "| medium | DS | stand-walk | 2 | 0.720 | 0.101 | 0.617 | 0.081 | 0.670 | 3 |" in markdown
+    assert "| medium | MOP | stand-walk | 1 | 0.452 | 0.101 | 0.617 | 0.081 | 0.067 | 2 |" in markdown
+    students = {f"mse-ds-medium-{seed}": {"pairs": {"stand-walk": {
+        layer: {"per_state_tau_a": {"mean": tau_a}, "per_state_tau_b": {"mean": tau_a + 0.1}}
+        for layer in ("layer1", "layer2")}}} for seed, tau_a in enumerate((0.5, 0.6, 0.7))}
+    results.shared["students"] = students
+    results.shared["groups"]["mse-ds_medium"]["members"] = list(students)
+    results.shared["groups"]["mse-single_medium"] = {"students": 3, "members": [], "no_sharing": "...", "pairs": {
+        "stand-walk": {"layer1": layer | {"per_state_tau_a_mean": 0.05}}}}
+    markdown = sharing_section(results, tmp_path / "fig", "fig/")
+    half = 0.1 * 4.302652729911275 / 3 ** 0.5  # t(0.975, 2) * sd / sqrt(3)
+    assert (f"| medium | DS | stand-walk | 1 | 0.600 [{0.6 - half:.3f}, {0.6 + half:.3f}] | 0.101 | "
+            f"0.700 [{0.7 - half:.3f}, {0.7 + half:.3f}] | 0.081 | 0.520 | 3 |") in markdown
+    assert "| medium | no sharing (single-task students) | stand-walk | 1 | 0.050 | 0.101 |" in markdown
     assert "| medium | OQS (own critics) | stand | D_stand->stand: 0.700, D_walk->stand: 0.300 |" in markdown
     empty = sharing_section(_full_results(), tmp_path / "fig", "fig/")
     assert "Not part of this run: the data-sharing students" in empty

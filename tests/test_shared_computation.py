@@ -18,8 +18,11 @@ from mop_core.shared_computation import (
     SharedComputationConfig,
     collect_visited,
     episode_seeds,
+    measure_networks,
     measure_student,
     rollout_jobs,
+    separate_hidden,
+    student_hidden,
     summarise_students,
     untrained_like,
     visited_states,
@@ -56,6 +59,49 @@ def test_a_student_that_ignores_its_task_id_shares_everything():
         assert row["linear_cka"] == pytest.approx(1.0)
     same = measure_student(student, ["stand", "walk"], [states[0], states[0]])
     assert same["pairs"]["stand-walk"]["layer2"]["average_tau_b"] == pytest.approx(1.0)
+
+
+class _OneId(torch.nn.Module):
+    """A two-task student seen as a one-task network: its forward ignores the id it is given and uses
+    ``task`` (the way a single-task student's only id, 0, selects its one task)."""
+
+    def __init__(self, student: Student, task: int):
+        super().__init__()
+        self.student, self.task = student, task
+
+    def hidden_layers(self):
+        return self.student.hidden_layers()
+
+    def forward(self, obs, task):
+        assert task == 0  # separate_hidden calls each network under its only id
+        return self.student(obs, self.task)
+
+
+def test_no_sharing_reference_maps_network_i_to_task_id_i():
+    """separate_hidden of a student's two ids as two networks measures exactly what the student does,
+    so network i stands for id i in every measure (a swap or a reused network would differ)."""
+    student = _student(2, seed=3, task_scale=4.0)
+    states = [torch.randn(25, 24), torch.randn(15, 24)]
+    joint = measure_student(student, ["stand", "walk"], states)
+    split = measure_networks(separate_hidden([_OneId(student, 0), _OneId(student, 1)]), ["stand", "walk"], states)
+    swapped = measure_networks(separate_hidden([_OneId(student, 1), _OneId(student, 0)]), ["stand", "walk"], states)
+    assert split["pairs"] == joint["pairs"] and split["dormant"] == joint["dormant"]
+    assert swapped["mean_activations"] != joint["mean_activations"]
+    assert measure_networks(student_hidden(student), ["stand", "walk"], states)["pairs"] == joint["pairs"]
+
+
+def test_two_separately_initialised_networks_agree_by_chance_only():
+    """The no-sharing null: neurons of separate networks correspond by index only, so their per-state
+    tau is near chance while the same network twice agrees perfectly."""
+    states = [torch.randn(200, 24), torch.randn(200, 24)]
+    a, b = _student(1, seed=0), _student(1, seed=1)
+    null = measure_networks(separate_hidden([a, b]), ["stand", "walk"], states)["pairs"]["stand-walk"]
+    same = measure_networks(separate_hidden([a, a]), ["stand", "walk"], states)["pairs"]["stand-walk"]
+    for layer in ("layer1", "layer2"):
+        assert same[layer]["per_state_tau_b"]["mean"] == pytest.approx(1.0)
+        assert same[layer]["linear_cka"] == pytest.approx(1.0)
+        assert abs(null[layer]["per_state_tau_b"]["mean"]) < 0.5
+        assert null[layer]["linear_cka"] < 0.99
 
 
 def test_every_pair_of_three_tasks_follows_the_definitions():

@@ -6,6 +6,10 @@ distillation setting next to plain MOP:
 - ``rank_<loss>`` (6.3.2, Figure 6.5): the ranking regulariser with ranking loss ``<loss>``
   (``distill.ranking``'s weight, layer weights, states and temperature; mop_core.ranking).
 
+The single-task students (``single_<task>``, the no-sharing reference of shared_computation) keep
+every setting too: they learn from one task's teacher and dataset only (one task id;
+mop_core.catalogue.make_structure_student).
+
 The data-sharing students (6.4: ``ds``, ``oqs_own``, ``oqs_target``) keep every distillation setting:
 what changes is what they learn from (other teachers, the union of the tasks' states:
 mop_core.catalogue.make_sharing_student), so their config is plain MOP's.
@@ -21,7 +25,7 @@ from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from mop_core.ranking import RANKING_LOSSES
-from mop_core.runs import RANKING_PREFIX, WIDTH_PREFIX
+from mop_core.runs import RANKING_PREFIX, WIDTH_PREFIX, single_task_of
 from mop_core.study import SHARING_STUDENTS
 
 if TYPE_CHECKING:
@@ -30,7 +34,7 @@ if TYPE_CHECKING:
 
 def variant_config(config: "DistillConfig", variant: str) -> "DistillConfig":
     """``config`` with ``variant``'s change ("" = plain MOP: unchanged)."""
-    if not variant or variant in SHARING_STUDENTS:
+    if not variant or variant in SHARING_STUDENTS or single_task_of(variant):
         return config
     if variant.startswith(RANKING_PREFIX) and variant[len(RANKING_PREFIX):] in RANKING_LOSSES:
         return replace(config, ranking=replace(config.ranking, loss=variant[len(RANKING_PREFIX):]))
@@ -38,5 +42,5 @@ def variant_config(config: "DistillConfig", variant: str) -> "DistillConfig":
     if variant.startswith(WIDTH_PREFIX) and width.isdigit() and int(width) >= 1:
         sizes = (int(width),) * len(config.student.hidden_sizes)
         return replace(config, student=replace(config.student, hidden_sizes=sizes))
-    raise ValueError(f"variant: expected '', w<width>, rank_<one of {tuple(RANKING_LOSSES)}> or one of "
+    raise ValueError(f"variant: expected '', w<width>, rank_<one of {tuple(RANKING_LOSSES)}>, single_<task> or one of "
                      f"{tuple(SHARING_STUDENTS)}, got {variant!r}")
