@@ -26,8 +26,9 @@ from mop_core.runs import (
     StudentRun,
     TeacherRun,
     cross_group,
+    own_teacher,
     ranking_variant,
-    sharing_teachers,
+    shared_teacher_runs,
     single_task_of,
     single_variant,
     width_variant,
@@ -42,6 +43,7 @@ from mop_core.study import (
     study_config,
     teacher_grid,
 )
+from mop_core.tasks import substitute_base, substitute_tasks
 
 LOSS_ACTORS = {name: loss.teacher_actor for name, loss in LOSSES.items()}  # what distill_grid checks
 
@@ -118,6 +120,7 @@ class Catalogue:
                 if (task, level) in cross:
                     jobs += [Job(cross_group(level, task), self.teacher_seed, cross[task, level].paths.checkpoint,
                                  other) for other in (*self.tasks, *transfer_tasks) if other != task]
+        for task in self.eval_tasks:
             for level in self.levels:
                 jobs += [Job(t.group, t.seed, t.paths.checkpoint, task) for t in self.shared_teachers
                          if t.task == task and t.level == level]
@@ -148,8 +151,17 @@ class Catalogue:
         return [run for run in self.students if not run.variant]
 
     def variant_students(self) -> list[StudentRun]:
-        """The common-structure and data-sharing variants' students (thesis 6.3, 6.4)."""
-        return [run for run in self.students if run.variant]
+        """The common-structure and data-sharing variants' students of the study's tasks (thesis 6.3, 6.4)."""
+        return [run for run in self.students if run.variant and not run.substitute]
+
+    def substitute_students(self) -> list[StudentRun]:
+        """The students of a substituted task set (data_sharing.substitutes: MOP, DS, OQS on it)."""
+        return [run for run in self.students if run.substitute]
+
+    @property
+    def eval_tasks(self) -> tuple[str, ...]:
+        """Every task a policy is trained for: the study's and the substitutes (in that order)."""
+        return self.tasks + tuple(dict.fromkeys(run.substitute for run in self.students if run.substitute))
 
     def single_task_students(self) -> dict[str, dict[int, list[StudentRun]]]:
         """The no-sharing reference: pairing -> seed -> that seed's single-task students (task order)."""
@@ -160,8 +172,8 @@ class Catalogue:
         return out
 
     def sharing_students(self) -> list[StudentRun]:
-        """The data-sharing students (thesis 6.4: DS, OQS)."""
-        return [run for run in self.students if run.shared_states]
+        """The data-sharing students of the study's tasks (thesis 6.4: DS, OQS)."""
+        return [run for run in self.students if run.shared_states and not run.substitute]
 
     def shared_teacher_batches(self) -> dict[str, list[TeacherRun]]:
         """train_shared_teachers entry (``<kind>-<level>-<actor>``) -> the teachers it trains together."""
@@ -183,6 +195,10 @@ class Catalogue:
             plain = StudentRun("mse", run.pairing, run.seed, run.teachers).group
             if (run.group, plain) not in pairs and plain in by_pairing.get(run.pairing, []):
                 pairs.append((run.group, plain))
+        mop = {run.scope: run.group for run in self.substitute_students() if run.variant == "mop"}
+        for run in self.substitute_students():  # against MOP's student of the same substituted task set
+            if run.variant != "mop" and run.scope in mop and (run.group, mop[run.scope]) not in pairs:
+                pairs.append((run.group, mop[run.scope]))
         return pairs
 
 
@@ -196,17 +212,26 @@ def make_student(loss: str, pairing: str, seed: int, tasks: tuple[str, ...], lev
 
 
 def make_sharing_student(variant: str, level: str, seed: int, tasks: tuple[str, ...],
-                         teacher_seed: int) -> StudentRun:
+                         teacher_seed: int, substitute: str = "") -> StudentRun:
     """A data-sharing MSE student (thesis 6.4) of one level, on the union of the tasks' datasets:
     ``ds`` learns from the DS teachers; ``oqs_<judge>`` from the Q-switch over task i's teachers on
-    D_{j->i} for every j (i = j: MOP's own teacher, reused), its ``teachers`` MOP's."""
-    own = tuple(TeacherRun(task, level, "deterministic", teacher_seed) for task in tasks)
+    D_{j->i} for every j (i = j: MOP's own teacher, reused), its ``teachers`` MOP's. With a
+    ``substitute``, on the substituted task set (``tasks`` with its base task replaced, the base's
+    datasets relabelled to it); there ``mop`` is plain MOP's student of that set."""
+    base = substitute_base(substitute) if substitute else ""
+    if substitute:
+        tasks = substitute_tasks(tasks, substitute)
+    data = tuple(base if task == substitute and substitute else task for task in tasks)
+    own = tuple(own_teacher(task, source, level, teacher_seed) for task, source in zip(tasks, data))
+    where = {"substitute": substitute, "base": base}
+    if variant == "mop":
+        return StudentRun("mse", level, seed, own, variant, **where)
     if variant == "ds":
-        shared = tuple(TeacherRun(task, level, "deterministic", teacher_seed, tasks) for task in tasks)
-        return StudentRun("mse", level, seed, shared, variant, shared_states=True)
-    candidates = tuple(tuple(own[i] if j == task else TeacherRun(task, level, "deterministic", teacher_seed, (j,))
-                             for j in tasks) for i, task in enumerate(tasks))
-    return StudentRun("mse", level, seed, own, variant, candidates, shared_states=True)
+        shared = tuple(TeacherRun(task, level, "deterministic", teacher_seed, data) for task in tasks)
+        return StudentRun("mse", level, seed, shared, variant, shared_states=True, **where)
+    candidates = tuple(tuple(own[i] if j == data[i] else TeacherRun(task, level, "deterministic", teacher_seed, (j,))
+                             for j in data) for i, task in enumerate(tasks))
+    return StudentRun("mse", level, seed, own, variant, candidates, shared_states=True, **where)
 
 
 def make_structure_student(variant: str, pairing: str, seed: int, tasks: tuple[str, ...], levels: tuple[str, ...],
@@ -244,10 +269,13 @@ def build_catalogue(params: Mapping[str, Any]) -> Catalogue:
                                              pairing_levels(structure_pairing, study), grid.teacher_seed)
                       for variant in variants for seed in grid.seeds)
     sharing = sharing_grid(params, study)
-    shared_teachers = tuple(t for level in sharing.levels
-                            for t in sharing_teachers(study.tasks, level, sharing.teachers, grid.teacher_seed))
+    shared_teachers = tuple(t for level in sharing.levels for t in shared_teacher_runs(
+        study.tasks, level, sharing.teachers, grid.teacher_seed, sharing.substitutes))
     students += tuple(make_sharing_student(variant, level, seed, study.tasks, grid.teacher_seed)
                       for level in sharing.levels for variant in sharing.students for seed in grid.seeds)
+    students += tuple(make_sharing_student(variant, level, seed, study.tasks, grid.teacher_seed, substitute)
+                      for substitute in sharing.substitutes for level in sharing.levels
+                      for variant in sharing.substitute_students for seed in grid.seeds)
     return Catalogue(
         tasks=study.tasks, levels=study.levels, study_seed=study.seed,
         behaviour=tuple(BehaviourRun(task, level) for task in study.tasks for level in BEHAVIOUR_LEVELS),
@@ -267,7 +295,7 @@ def student_inputs(runs: list[StudentRun]) -> dict:
     first = runs[0]
     if any(run.all_teachers != first.all_teachers for run in runs):
         raise ValueError(f"runs: the students of {first.batch} must learn from the same teachers")
-    datasets = list(dict.fromkeys(d for t in first.all_teachers for d in (t.dataset, *t.datasets)))
+    datasets = list(dict.fromkeys([*first.datasets, *(d for t in first.all_teachers for d in t.datasets)]))
     return {"students": [run.name for run in runs], "tasks": list(first.tasks),
             "teachers": [{"path": t.paths.checkpoint.as_posix(), "sha256": file_sha256(t.paths.checkpoint)}
                          for t in first.all_teachers],

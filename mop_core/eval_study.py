@@ -64,6 +64,24 @@ def normalisers(tasks, collect_metrics: Path) -> dict[str, dict]:
     return out
 
 
+def substitute_normalisers(substitutes: dict[str, str], norms: dict, study_seed: int, episode_length: int,
+                           rollout_envs: int) -> dict[str, dict]:
+    """Per substitute task (-> its base task, data_sharing.substitutes): R_random measured here, as
+    many uniformly random episodes as collect ran for the base task (no collect run covers a
+    substitute), and R_expert published (mop_core.tasks)."""
+    from mop_core.collect import random_returns
+
+    out = {}
+    for task, base in substitutes.items():
+        episodes = norms[base]["random_episodes"]
+        seeds = derive_seeds([study_seed, "eval", "random", task], ("episodes", "policy"))
+        returns = random_returns(task, episodes, seeds["episodes"], episode_length, rollout_envs, seeds["policy"])
+        out[task] = {"random_return": float(returns.mean()), "random_episodes": episodes,
+                     "random_source": "eval stage", "expert_return": get_task(task).expert_return,
+                     "expert_source": "UTDS task.json"}
+    return out
+
+
 def evaluate_study(catalogue: Catalogue, config: EvalConfig, episode_length: int, norms: dict,
                    progress: bool = False) -> StudyEvaluation:
     """Roll out every job of the catalogue (the same episode seeds for all) and summarise per group."""
@@ -145,7 +163,7 @@ def eval_metrics(evaluation: StudyEvaluation, catalogue: Catalogue, config: Eval
     """The eval stage's metrics record (``dvc metrics show``)."""
     summary, references = evaluation.summary, catalogue.references()
     metrics: dict = {}
-    for task in catalogue.tasks:
+    for task in catalogue.eval_tasks:
         entry = {g: {k: v for k, v in s.items() if k != "train_seeds"} for g, s in summary[task].items()
                  if not is_cross_group(g)}
         metrics[task] = entry | ratio_entries(summary, references, task)
@@ -187,13 +205,13 @@ def write_eval_outputs(out: Path, evaluation: StudyEvaluation, metrics: dict, ca
                                              for group, per_seed in groups.items()}
                                       for task, groups in evaluation.returns.items()})
     with atomic_path(out / "returns.tsv") as tmp:
-        tmp.write_text(returns_table(evaluation.summary, catalogue.tasks))
+        tmp.write_text(returns_table(evaluation.summary, catalogue.eval_tasks))
     plotted = {task: {g: s for g, s in evaluation.summary[task].items() if not is_cross_group(g)}
-               for task in catalogue.tasks}
+               for task in catalogue.eval_tasks}
     returns_bar_chart(out / "returns.png", plotted,
                       f"returns, {config.episodes} episodes per run (95% CI; unit and n per bar)")
     curves = {run.name: read_curve(run.paths.curve) for run in catalogue.students}
-    learning_curves(out / "student_curves.png", curves, list(catalogue.tasks),
+    learning_curves(out / "student_curves.png", curves, list(catalogue.eval_tasks),
                     "students: evaluation return during distillation")
     return plotted
 

@@ -19,7 +19,8 @@ collect steps one walker per TD3 update at the single-environment rate; the comm
 or for the ranking regulariser: a lower bound for width 512 and for the regulariser) and a single-task
 student (distill_single) its task's share of a multi-task student's update; a data-sharing
 teacher (train_shared_teachers) costs what a deterministic teacher does (its data is larger, its
-updates are not) and a data-sharing student what a plain MSE student does. It is an
+updates are not) and a data-sharing or substituted-set student (distill_sharing, distill_substitute)
+what a plain MSE student does. It is an
 estimate from rates measured in isolation, not a measurement of the stages.
 """
 
@@ -131,12 +132,19 @@ def stage_hours(params: Mapping[str, Any], rates: Rates) -> dict[str, tuple[int,
 
     sharing = params.get("data_sharing", {})
     sharing_levels, kinds = sharing.get("levels", []), sharing.get("teachers", [])
-    shared_teachers = len(sharing_levels) * (len(tasks) * ("ds" in kinds)
-                                             + len(tasks) * (len(tasks) - 1) * ("oqs" in kinds))
+    substitutes = len(sharing.get("substitutes", []))
+    # a substitute's set adds its own teacher, its DS teacher and its OQS teachers (m - 1 from other data), and
+    # each other task's OQS teacher from the substitute's data is the study set's from its base task's (reused)
+    shared_teachers = len(sharing_levels) * (
+        len(tasks) * ("ds" in kinds) + len(tasks) * (len(tasks) - 1) * ("oqs" in kinds)
+        + substitutes * (1 + ("ds" in kinds) + (len(tasks) - 1) * ("oqs" in kinds)))
     per_teacher = (t_sched["steps"] / rates.pbrl["deterministic"] + _evaluation_steps(t_sched, length) / rates.rollout)
     out["train_shared_teachers"] = (shared_teachers, shared_teachers * per_teacher / 3600)
     entries = len(sharing_levels) * len(sharing.get("students", []))
     out["distill_sharing"] = (entries * seeds, entries * per_entry / 3600)
+    students += entries * seeds
+    entries = substitutes * len(sharing_levels) * len(sharing.get("substitute_students", []))
+    out["distill_substitute"] = (entries * seeds, entries * per_entry / 3600)
     students += entries * seeds
 
     policies = (2 * len(tasks)  # behaviour medium and expert

@@ -59,6 +59,7 @@ class StudyResults:
     multitask: list[Run] = field(default_factory=list)  # key: level
     students: list[Run] = field(default_factory=list)  # plain MOP students; key: loss, pairing
     variants: list[Run] = field(default_factory=list)  # common-structure students; key: loss, variant, pairing
+    substitutes: list[Run] = field(default_factory=list)  # a substituted task set's; key: + substitute
     pairing_levels: dict[str, list[str]] = field(default_factory=dict)  # pairing -> level per task
     evaluation: dict | None = None  # eval metrics (CIs per task and group, cross_task)
     shared: dict | None = None  # shared_computation metrics
@@ -657,12 +658,11 @@ def load_results(catalogue: Catalogue, params: Mapping[str, Any]) -> StudyResult
         results.multitask += [run] if run else []
     for s in catalogue.students:
         results.pairing_levels[s.pairing] = list(s.levels)
-        if s.variant:
-            run = load_run(s, {"loss": s.loss, "variant": s.variant, "pairing": s.pairing})
-            results.variants += [run] if run else []
-        else:
-            run = load_run(s, {"loss": s.loss, "pairing": s.pairing})
-            results.students += [run] if run else []
+        kind = results.substitutes if s.substitute else results.variants if s.variant else results.students
+        key = {"loss": s.loss} | ({"variant": s.variant} if s.variant else {}) | {"pairing": s.pairing} | (
+            {"substitute": s.substitute} if s.substitute else {})
+        run = load_run(s, key)
+        kind += [run] if run else []
     results.evaluation = read_optional(stage_dir("eval") / "metrics.json")
     shared = stage_dir("shared_computation")
     results.shared = read_optional(shared / "metrics.json")
@@ -675,7 +675,7 @@ def load_results(catalogue: Catalogue, params: Mapping[str, Any]) -> StudyResult
     for members in catalogue.student_groups().values():
         path = shared / "figures" / f"{members[0].name}.png"
         if path.is_file():
-            sorted_figures[f"{members[0].recipe} {members[0].pairing} (seed {members[0].seed})"] = \
+            sorted_figures[f"{members[0].recipe} {members[0].scope} (seed {members[0].seed})"] = \
                 path.relative_to(RESULTS).as_posix()
     figures["sorted_activations"] = sorted_figures
     results.figures = figures

@@ -1,6 +1,7 @@
 """The report's section on data sharing and the offline Q-switch (thesis 6.4): Figure 6.9 (teachers
 and students of MOP, DS and OQS per level), Table 6.2 (Kendall's tau per layer) and how often each
-OQS candidate teacher gave the label.
+OQS candidate teacher gave the label; the same on each substitute's task set ({stand_still, walk}:
+data_sharing.substitutes, the thesis's recommended movement penalty, 6.4.5 / 7.3).
 
 Returns are the eval stage's (a teacher trained once: interval over its episodes; a student group:
 over its training seeds, n in each cell). Tau is the shared_computation stage's per-state tau
@@ -9,13 +10,22 @@ over its training seeds, n in each cell). Tau is the shared_computation stage's 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
 from mop_core.plots import interval_panels
 from mop_core.report import Run, StudyResults, eval_entry, fmt, fmt_ci, fmt_normalised, not_run, table
 from mop_core.report_structure import fmt_interval, seed_interval
-from mop_core.runs import no_sharing_group, structure_group, student_group, student_recipe, teacher_group
+from mop_core.runs import (
+    TeacherRun,
+    no_sharing_group,
+    own_teacher,
+    structure_group,
+    student_group,
+    student_recipe,
+)
+from mop_core.tasks import substitute_base, substitute_tasks
 
 # Thesis Table 6.2 (walk x stand students, tau-a per layer, one seed): the reference the measured
 # rows sit next to. Expert x Expert's OQS row has no approach label in the thesis's text; it is the
@@ -23,22 +33,72 @@ from mop_core.runs import no_sharing_group, structure_group, student_group, stud
 THESIS_TABLE_6_2 = {"medium": {"MOP": (0.067, 0.15), "DS": (0.52, 0.67), "OQS": (0.68, 0.76)},
                     "expert": {"MOP": (0.16, 0.36), "DS": (0.44, 0.62), "OQS": (0.43, 0.72)}}
 STUDENT_LABELS = {"": "MOP", "ds": "DS", "oqs_own": "OQS (own critics)", "oqs_target": "OQS (target critic)"}
+SET_VARIANTS = {"": "", "mop": ""}  # a substituted set's MOP students are variant "mop" (the study's have none)
+
+
+@dataclass(frozen=True)
+class TaskSet:
+    """The tasks one comparison runs on: the study's, or a substitute's set (data_sharing.substitutes:
+    the substitute in place of its base task, on the base task's data)."""
+
+    tasks: tuple[str, ...]
+    data: tuple[str, ...]  # per task, whose datasets are its own
+    substitute: str = ""
+
+    def scope(self, level: str) -> str:
+        """The students' pairing part of their group names (mop_core.runs.StudentRun.scope)."""
+        return f"{self.substitute}-{level}" if self.substitute else level
+
+    def student_variant(self, variant: str) -> str:
+        """A STUDENT_LABELS variant as this set's students have it ("" -> "mop" in a substituted set)."""
+        return ("mop" if self.substitute else "") if variant == "" else variant
+
+    @property
+    def title(self) -> str:
+        names = "{" + ", ".join(self.tasks) + "}"
+        if not self.substitute:
+            return names
+        return f"{names} ({self.substitute} on {self.data[self.tasks.index(self.substitute)]}'s data)"
+
+
+def task_sets(results: StudyResults) -> list[TaskSet]:
+    """The study's task set, then each substitute's (in the order its students were loaded)."""
+    sets = [TaskSet(tuple(results.tasks), tuple(results.tasks))]
+    for substitute in dict.fromkeys(r.key["substitute"] for r in results.substitutes):
+        base = substitute_base(substitute)
+        tasks = substitute_tasks(tuple(results.tasks), substitute)
+        sets.append(TaskSet(tasks, tuple(base if t == substitute else t for t in tasks), substitute))
+    return sets
+
+
+def set_runs(results: StudyResults, task_set: TaskSet) -> list[Run]:
+    """The data-sharing (and a substituted set's MOP) students of one task set."""
+    if task_set.substitute:
+        return [r for r in results.substitutes if r.key["substitute"] == task_set.substitute]
+    return [r for r in results.variants if r.key["variant"] in STUDENT_LABELS]
 
 
 def sharing_levels(results: StudyResults) -> list[str]:
     return list(dict.fromkeys(r.key["pairing"] for r in results.variants if r.key["variant"] in STUDENT_LABELS))
 
 
-def teacher_rows(results: StudyResults, level: str, task: str) -> list[tuple[str, str]]:
+def teacher_rows(results: StudyResults, level: str, task: str, task_set: TaskSet | None = None
+                 ) -> list[tuple[str, str]]:
     """(label, eval group) of every teacher of ``task`` at ``level``: MOP's, DS's, each OQS candidate's."""
-    rows = [("MOP teacher", teacher_group(level, "deterministic")), ("DS teacher", f"teacher_ds_{level}_deterministic")]
-    rows += [(f"OQS teacher on D_{other}->{task}", f"teacher_from_{other}_{level}_deterministic")
-             for other in results.tasks if other != task]
+    task_set = task_set or TaskSet(tuple(results.tasks), tuple(results.tasks))
+    own = task_set.data[task_set.tasks.index(task)]
+    rows = [("MOP teacher", own_teacher(task, own, level, 0).group),
+            ("DS teacher", TeacherRun(task, level, "deterministic", 0, task_set.data).group)]
+    rows += [(f"OQS teacher on D_{other}->{task}", TeacherRun(task, level, "deterministic", 0, (other,)).group)
+             for other in task_set.data if other != own]
     return [(label, group) for label, group in rows if eval_entry(results, task, group)]
 
 
-def student_rows(results: StudyResults, level: str, task: str) -> list[tuple[str, str]]:
-    rows = [(f"{label} student", student_group(student_recipe("mse", variant), level))
+def student_rows(results: StudyResults, level: str, task: str, task_set: TaskSet | None = None
+                 ) -> list[tuple[str, str]]:
+    task_set = task_set or TaskSet(tuple(results.tasks), tuple(results.tasks))
+    rows = [(f"{label} student", student_group(student_recipe("mse", task_set.student_variant(variant)),
+                                               task_set.scope(level)))
             for variant, label in STUDENT_LABELS.items()]
     return [(label, group) for label, group in rows if eval_entry(results, task, group)]
 
@@ -56,23 +116,27 @@ def point(entry: dict) -> tuple[float, float | None, float | None]:
     return entry["mean"], entry.get("ci_low"), entry.get("ci_high")
 
 
-def returns_lines(results: StudyResults, levels: Sequence[str], figure: Path, link: str) -> list[str]:
+def returns_lines(results: StudyResults, levels: Sequence[str], figure: Path, link: str,
+                  task_set: TaskSet | None = None) -> list[str]:
+    task_set = task_set or TaskSet(tuple(results.tasks), tuple(results.tasks))
     panels: dict = {}
     rows = []
     for level in levels:
-        for task in results.tasks:
-            mop = eval_entry(results, task, teacher_group(level, "deterministic"))
-            for kind, members in (("teachers", teacher_rows(results, level, task)),
-                                  ("students", student_rows(results, level, task))):
+        for task in task_set.tasks:
+            teachers = teacher_rows(results, level, task, task_set)
+            mop = eval_entry(results, task, teachers[0][1]) if teachers and teachers[0][0] == "MOP teacher" else None
+            for kind, members in (("teachers", teachers), ("students", student_rows(results, level, task, task_set))):
                 series = panels.setdefault(f"return on {task}", {}).setdefault(f"{level} {kind}", [])
                 for label, group in members:
                     entry = eval_entry(results, task, group)
                     series.append((short_label(label), *point(entry)))
                     ratio = fmt(entry["mean"] / mop["mean"], 2) if mop else "n/a"
                     rows.append([level, task, label, fmt_ci(entry), fmt_normalised(entry), ratio])
+    if not rows:
+        return []
     interval_panels(figure, panels, "approach", {name: "episode return (eval stage)" for name in panels},
-                    "MOP, data sharing (DS) and offline Q-switch (OQS): teachers and students")
-    return [f"![Figure 6.9]({link})", "",
+                    f"MOP, data sharing (DS) and offline Q-switch (OQS) on {task_set.title}: teachers and students")
+    return [f"![Figure 6.9 on {task_set.title}]({link})", "",
             table(["level", "task", "policy", "return [95% CI]", "normalised", "/ MOP teacher"], rows), "",
             "Teachers are trained once (interval over their evaluation episodes); students are groups of training "
             "seeds (interval over seeds, n in each cell). MOP teacher: D_i->i (the train_teachers teacher, reused as "
@@ -90,25 +154,29 @@ def seed_tau(shared: dict, summary: dict, pair: str, layer: str, variant: str) -
     return fmt_interval(seed_interval(values))
 
 
-def tau_lines(results: StudyResults, levels: Sequence[str]) -> list[str]:
+def tau_lines(results: StudyResults, levels: Sequence[str], sets: Sequence[TaskSet] = ()) -> list[str]:
     shared = results.shared or {}
     groups = shared.get("groups", {})
     rows = []
-    for level in levels:
-        labelled = [(label, groups.get(structure_group(student_recipe("mse", variant), level)))
-                    for variant, label in STUDENT_LABELS.items()]
-        labelled += [("no sharing (single-task students)", groups.get(no_sharing_group(level)))]
-        for label, summary in labelled:
-            if not summary:
-                continue
-            thesis = THESIS_TABLE_6_2.get(level, {}).get(label.split(" ")[0])
-            for pair, layers in summary["pairs"].items():
-                for index, (layer, row) in enumerate(layers.items()):
-                    reference = fmt(thesis[index], 3) if thesis and index < len(thesis) else "n/a"
-                    rows.append([level, label, pair, layer.removeprefix("layer"),
-                                 seed_tau(shared, summary, pair, layer, "a"), fmt(row["per_state_tau_a_sd"], 3),
-                                 seed_tau(shared, summary, pair, layer, "b"),
-                                 fmt(row.get("selectivity_mean"), 3), reference, summary["students"]])
+    for task_set in sets or task_sets(results):
+        for level in levels:
+            scope = task_set.scope(level)
+            labelled = [(label, groups.get(structure_group(student_recipe("mse", task_set.student_variant(variant)),
+                                                           scope)))
+                        for variant, label in STUDENT_LABELS.items()]
+            if not task_set.substitute:
+                labelled += [("no sharing (single-task students)", groups.get(no_sharing_group(level)))]
+            for label, summary in labelled:
+                if not summary:
+                    continue
+                thesis = None if task_set.substitute else THESIS_TABLE_6_2.get(level, {}).get(label.split(" ")[0])
+                for pair, layers in summary["pairs"].items():
+                    for index, (layer, row) in enumerate(layers.items()):
+                        reference = fmt(thesis[index], 3) if thesis and index < len(thesis) else "n/a"
+                        rows.append([level, label, pair, layer.removeprefix("layer"),
+                                     seed_tau(shared, summary, pair, layer, "a"), fmt(row["per_state_tau_a_sd"], 3),
+                                     seed_tau(shared, summary, pair, layer, "b"),
+                                     fmt(row.get("selectivity_mean"), 3), reference, summary["students"]])
     if not rows:
         return [not_run("Table 6.2", "It needs the shared_computation stage (`dvc repro shared_computation`)."), ""]
     return [table(["level", "students", "task pair", "layer", "per-state tau-a [95% CI over students]",
@@ -123,18 +191,20 @@ def tau_lines(results: StudyResults, levels: Sequence[str]) -> list[str]:
             "7's null). Thesis column: its Table 6.2 (one seed, walk x stand).", ""]
 
 
-def q_switch_lines(results: StudyResults, levels: Sequence[str]) -> list[str]:
+def q_switch_lines(results: StudyResults, levels: Sequence[str], sets: Sequence[TaskSet] = ()) -> list[str]:
     rows = []
-    for level in levels:
-        for variant in ("oqs_own", "oqs_target"):
-            runs: list[Run] = [r for r in results.variants if r.key["variant"] == variant and r.key["pairing"] == level]
-            records = [r.metrics["q_switch"] for r in runs if "q_switch" in r.metrics]
-            if not records:
-                continue
-            for task, shares in records[0].items():
-                mean = {source: sum(rec[task][source] for rec in records) / len(records) for source in shares}
-                cells = ", ".join(f"D_{source}->{task}: {fmt(share, 3)}" for source, share in mean.items())
-                rows.append([level, STUDENT_LABELS[variant], task, cells])
+    for task_set in sets or task_sets(results):
+        for level in levels:
+            for variant in ("oqs_own", "oqs_target"):
+                runs = [r for r in set_runs(results, task_set) if r.key["variant"] == variant
+                        and r.key["pairing"] == level]
+                records = [r.metrics["q_switch"] for r in runs if "q_switch" in r.metrics]
+                if not records:
+                    continue
+                for task, shares in records[0].items():
+                    mean = {source: sum(rec[task][source] for rec in records) / len(records) for source in shares}
+                    cells = ", ".join(f"D_{source}->{task}: {fmt(share, 3)}" for source, share in mean.items())
+                    rows.append([level, STUDENT_LABELS[variant], task, cells])
     if not rows:
         return []
     return [table(["level", "students", "target task", "share of states each candidate labels"], rows), "",
@@ -145,18 +215,34 @@ def q_switch_lines(results: StudyResults, levels: Sequence[str]) -> list[str]:
             "group's students (the union's states are the same for every seed).", ""]
 
 
+SUBSTITUTE_NOTE = ("{title}: the thesis found no negative transfer between stand and walk because dm_control's "
+                   "stand does not forbid moving (walking upright scores as standing, 6.4.5) and recommends a "
+                   "movement penalty (7.3). Here {substitute} (section 8) learns from {base}'s datasets relabelled "
+                   "to its reward, and walk's teacher loses at it (Table 6.3), so sharing data or switching to the "
+                   "other task's teacher can now cost return: compare each DS and OQS row with MOP's on "
+                   "{substitute}.")
+
+
 def sharing_section(results: StudyResults, figure_dir: Path, link_prefix: str) -> str:
-    """Section 7b: data sharing (6.4.2) and the offline Q-switch (6.4.3)."""
+    """Section 7b: data sharing (6.4.2) and the offline Q-switch (6.4.3), on the study's tasks and on
+    each substitute's task set."""
     out = ["## 7b. Data sharing and offline Q-switch (thesis 6.4, Figure 6.9, Table 6.2)", ""]
-    levels = sharing_levels(results)
+    levels = sharing_levels(results) or list(dict.fromkeys(r.key["pairing"] for r in results.substitutes))
     if not levels:
         return "\n".join(out + [not_run("the data-sharing students", "Set `data_sharing.levels`, `teachers` and "
                                         "`students` and run `dvc repro`."), ""])
-    out += returns_lines(results, levels, figure_dir / "sharing.png", f"{link_prefix}sharing.png")
-    out += tau_lines(results, levels)
-    out += q_switch_lines(results, levels)
+    sets = task_sets(results)
+    out += returns_lines(results, levels, figure_dir / "sharing.png", f"{link_prefix}sharing.png", sets[0])
     out += ["Thesis (Figure 6.9, medium): the DS teacher beats MOP's on stand and matches it on walk, and the DS "
             "student is the best student; OQS's cross-task teacher is good at standing from walk data and poor at "
             "walking from stand data; the OQS student stays below its best teacher, which the thesis attributes to "
             "uncoordinated Q scales (the 'target critic' rows test that); tau rises MOP < DS < OQS (Table 6.2).", ""]
+    for task_set in sets[1:]:
+        name = f"sharing_{task_set.substitute}.png"
+        base = task_set.data[task_set.tasks.index(task_set.substitute)]
+        out += [f"### Second task set: {task_set.title}", "",
+                SUBSTITUTE_NOTE.format(title=task_set.title, substitute=task_set.substitute, base=base), ""]
+        out += returns_lines(results, levels, figure_dir / name, f"{link_prefix}{name}", task_set)
+    out += tau_lines(results, levels, sets)
+    out += q_switch_lines(results, levels, sets)
     return "\n".join(out)

@@ -29,6 +29,7 @@ from typing import Sequence
 
 from mop_core.artifacts import RunPaths
 from mop_core.layout import behaviour_checkpoint, dataset_file, relabel_file, run_paths, tau_curves_dir
+from mop_core.tasks import substitute_base, substitute_tasks
 
 BEHAVIOUR_LEVELS = ("medium", "expert")  # the collect stage's snapshots
 
@@ -192,15 +193,6 @@ class TeacherRun:
         return run_paths(self.name, self.family, self.batch)
 
     @property
-    def dataset(self) -> Path:
-        """The dataset of its own task (the states MOP's students of this teacher use)."""
-        return dataset_file(self.task, self.level)
-
-    @property
-    def relabel(self) -> Path:
-        return relabel_file(self.task, self.level)
-
-    @property
     def datasets(self) -> tuple[Path, ...]:
         """The datasets it learns from, one per data task (their rewards: :attr:`relabels`' ``task`` column)."""
         return tuple(dataset_file(j, self.level) for j in self.data_tasks)
@@ -243,11 +235,23 @@ class StudentRun:
     variant: str = ""  # a common-structure variant (w16, rank_pairwise, ds, oqs_own: mop_core.distill.variants)
     candidates: tuple[tuple[TeacherRun, ...], ...] = ()  # OQS: per task i, its teachers on D_{j->i} for every j
     shared_states: bool = False  # states from the union of every task's dataset (DS, OQS), not each task's own
+    substitute: str = ""  # the task standing in for its base task in this student's task set (data_sharing)
+    base: str = ""  # that base task: the substitute's states and data are the base task's datasets
     family = "students"
 
     @property
     def recipe(self) -> str:
         return student_recipe(self.loss, self.variant)
+
+    @property
+    def scope(self) -> str:
+        """Its pairing, and for a substituted task set the substitute first: ``medium``, ``stand_still-medium``."""
+        return f"{self.substitute}-{self.pairing}" if self.substitute else self.pairing
+
+    @property
+    def data_tasks(self) -> tuple[str, ...]:
+        """Per task, the task whose datasets hold its own states (a substitute's: its base task's)."""
+        return tuple(self.base if task == self.substitute and self.substitute else task for task in self.tasks)
 
     @property
     def single_task(self) -> bool:
@@ -256,21 +260,21 @@ class StudentRun:
 
     @property
     def name(self) -> str:
-        return f"{self.recipe}-{self.pairing}-{self.seed}"
+        return f"{self.recipe}-{self.scope}-{self.seed}"
 
     @property
     def batch(self) -> str:
         """The distill entry that trains this student with every other seed of its (recipe, pairing),
         as one vectorised group: ``<recipe>-<pairing>``, the folder of its files."""
-        return student_batch(self.recipe, self.pairing)
+        return student_batch(self.recipe, self.scope)
 
     @property
     def group(self) -> str:
-        return student_group(self.recipe, self.pairing)
+        return student_group(self.recipe, self.scope)
 
     @property
     def structure_group(self) -> str:
-        return structure_group(self.recipe, self.pairing)
+        return structure_group(self.recipe, self.scope)
 
     @property
     def paths(self) -> RunPaths:
@@ -292,7 +296,7 @@ class StudentRun:
     @property
     def datasets(self) -> tuple[Path, ...]:
         """Each task's own offline dataset (its MOP teacher's; the per-state tau probes come from it)."""
-        return tuple(t.dataset for t in self.teachers)
+        return tuple(dataset_file(task, level) for task, level in zip(self.data_tasks, self.levels))
 
     @property
     def state_datasets(self) -> tuple[Path, ...]:
@@ -313,13 +317,37 @@ class StudentRun:
         return self.teachers[0].seed
 
 
-def sharing_teachers(tasks: Sequence[str], level: str, kinds: Sequence[str], seed: int) -> tuple[TeacherRun, ...]:
+def own_teacher(task: str, data_task: str, level: str, seed: int) -> TeacherRun:
+    """MOP's deterministic teacher of ``task`` on its own data, D_{data_task->task} (data_task = task
+    but for a substitute, which learns from its base task's data)."""
+    return TeacherRun(task, level, "deterministic", seed, () if data_task == task else (data_task,))
+
+
+def sharing_teachers(tasks: Sequence[str], level: str, kinds: Sequence[str], seed: int,
+                     data_tasks: Sequence[str] = ()) -> tuple[TeacherRun, ...]:
     """The teachers on relabelled data of one level (deterministic, seed ``seed``): ``ds``, per task i
-    one on the union over every task j of D_{j->i}; ``oqs``, per pair j != i one on D_{j->i}."""
+    one on the union over every task j of D_{j->i}; ``oqs``, per pair j != i one on D_{j->i}.
+    ``data_tasks``: per task, whose datasets are its own (default: its own; a substitute's base)."""
+    data = tuple(data_tasks) or tuple(tasks)
     runs: list[TeacherRun] = []
     if "ds" in kinds:
-        runs += [TeacherRun(task, level, "deterministic", seed, tuple(tasks)) for task in tasks]
+        runs += [TeacherRun(task, level, "deterministic", seed, data) for task in tasks]
     if "oqs" in kinds:
-        runs += [TeacherRun(task, level, "deterministic", seed, (source,)) for task in tasks for source in tasks
-                 if source != task]
+        runs += [TeacherRun(task, level, "deterministic", seed, (source,)) for task, own in zip(tasks, data)
+                 for source in data if source != own]
     return tuple(runs)
+
+
+def shared_teacher_runs(tasks: Sequence[str], level: str, kinds: Sequence[str], seed: int,
+                        substitutes: Sequence[str] = ()) -> tuple[TeacherRun, ...]:
+    """Every teacher on relabelled data of one level (the train_shared_teachers entries), each once:
+    :func:`sharing_teachers` on the study's ``tasks``; then per substitute (data_sharing) its own
+    teacher on D_{base->substitute} and its task set's DS / OQS teachers not trained already (the
+    other tasks' OQS teachers on the base task's data are the study set's)."""
+    runs = list(sharing_teachers(tasks, level, kinds, seed))
+    for substitute in substitutes:
+        base = substitute_base(substitute)
+        replaced = substitute_tasks(tuple(tasks), substitute)
+        data = tuple(base if task == substitute else task for task in replaced)
+        runs += [own_teacher(substitute, base, level, seed), *sharing_teachers(replaced, level, kinds, seed, data)]
+    return tuple(run for run in dict.fromkeys(runs) if run.sharing)

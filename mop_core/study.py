@@ -21,7 +21,7 @@ from mop_core.config import ConfigError, from_mapping, require, require_unique
 from mop_core.data.hdf5 import LEVELS
 from mop_core.nn import ACTOR_TYPES
 from mop_core.schedule import TrainSchedule
-from mop_core.tasks import check_task_list
+from mop_core.tasks import check_task_list, get_task, substitute_base
 
 SECTIONS = ("study", "collect", "relabel", "train_teachers", "train_multitask", "distill", "common_structure",
             "data_sharing", "eval", "shared_computation")
@@ -128,6 +128,9 @@ class StructureGrid:
 
 SHARING_TEACHERS = ("ds", "oqs")  # mop_core.runs.SHARING_KINDS (tested equal)
 SHARING_STUDENTS = {"ds": "ds", "oqs_own": "oqs", "oqs_target": "oqs"}  # student variant -> teachers it needs
+# the students of a substituted task set: MOP's (its substitute's own teacher, on D_{base->substitute}, trains
+# with the OQS teachers) and the data-sharing ones
+SUBSTITUTE_STUDENTS = {"mop": "oqs"} | SHARING_STUDENTS
 
 
 @dataclass(frozen=True)
@@ -135,21 +138,35 @@ class SharingGrid:
     """The data_sharing section (thesis 6.4): per level, teachers on relabelled data D_{j->i} (``ds``:
     one per task on the union over j; ``oqs``: one per pair j != i) and MSE students of them (``ds``;
     ``oqs_own`` / ``oqs_target``: Q-switch targets judged by each candidate's own critics or by the
-    target task's), next to plain MOP of the same level. Empty lists train none."""
+    target task's), next to plain MOP of the same level. Empty lists train none.
+
+    ``substitutes`` (6.4.5, 7.3): tasks no behaviour policy collects for (``stand_still``), each
+    standing in for its base task (the study task its reward derives from: :func:`substitute_base`)
+    in a second task set, whose datasets are the base task's relabelled to it; on that set the MOP
+    teachers (the substitute's on D_{base->substitute}), the ``teachers`` kinds and the
+    ``substitute_students`` (``mop``, ``ds``, ``oqs_own``, ``oqs_target``) are trained as on the
+    study's tasks."""
 
     levels: tuple[str, ...] = ()
     teachers: tuple[str, ...] = ()
     students: tuple[str, ...] = ()
+    substitutes: tuple[str, ...] = ()
+    substitute_students: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
-        for key, known in (("teachers", SHARING_TEACHERS), ("students", tuple(SHARING_STUDENTS))):
+        for key, known in (("teachers", SHARING_TEACHERS), ("students", tuple(SHARING_STUDENTS)),
+                           ("substitute_students", tuple(SUBSTITUTE_STUDENTS))):
             for i, name in enumerate(getattr(self, key)):
                 require(name in known, f"{key}[{i}]", f"one of {', '.join(known)}", name)
             require_unique(getattr(self, key), key)
         require_unique(self.levels, "levels")
-        for i, student in enumerate(self.students):
-            require(SHARING_STUDENTS[student] in self.teachers, f"students[{i}]",
-                    f"its {SHARING_STUDENTS[student]} teachers in teachers", student)
+        require_unique(self.substitutes, "substitutes")
+        for key, needs in (("students", SHARING_STUDENTS), ("substitute_students", SUBSTITUTE_STUDENTS)):
+            for i, student in enumerate(getattr(self, key)):
+                require(needs[student] in self.teachers, f"{key}[{i}]",
+                        f"its {needs[student]} teachers in teachers", student)
+        require(not self.substitutes or "oqs" in self.teachers, "substitutes", "oqs in teachers (a substitute's "
+                "own teacher, on its base task's data, trains with the OQS teachers)", list(self.substitutes))
 
 
 # ---- sections -------------------------------------------------------------------------------------
@@ -235,7 +252,12 @@ def sharing_grid(params: Mapping[str, Any], study: StudyConfig) -> SharingGrid:
                 level)
         require((level,) * len(study.tasks) in pairings, f"data_sharing.levels[{i}]", "a level with a distill "
                 "pairing of it (the MOP students the data-sharing students are compared with)", level)
-    if grid.levels and (grid.teachers or grid.students):
+    for i, task in enumerate(grid.substitutes):
+        get_task(task, f"data_sharing.substitutes[{i}]")
+        require(task not in study.tasks and substitute_base(task) in study.tasks, f"data_sharing.substitutes[{i}]",
+                f"a task outside study.tasks whose base task (the one its reward derives from) is one of "
+                f"study.tasks {list(study.tasks)}", task)
+    if grid.levels and (grid.teachers or grid.students or grid.substitutes):
         require(len(study.tasks) >= 2, "data_sharing", "at least two study.tasks (data is shared between tasks)",
                 list(study.tasks))
         actors = section(params, "train_teachers").get("actors", [])

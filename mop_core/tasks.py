@@ -163,3 +163,15 @@ def check_task_list(names: Iterable[str], key: str) -> tuple[str, ...]:
     if len(set(names)) != len(names):
         raise ConfigError(f"{key}: tasks must not repeat, got {list(names)}")
     return names
+
+
+def substitute_base(task: str) -> str:
+    """The study task whose datasets a substitute task learns from: the task its reward derives from
+    (its registry entry's dm_control task: stand_still -> stand)."""
+    return get_task(task, "substitute").dm_control_task
+
+
+def substitute_tasks(tasks: tuple[str, ...], substitute: str) -> tuple[str, ...]:
+    """The task set of a substitute: ``tasks`` with its base task replaced by it, in the same order."""
+    base = substitute_base(substitute)
+    return tuple(substitute if task == base else task for task in tasks)

@@ -26,7 +26,10 @@ no-sharing reference the shared_computation stage measures the multi-task studen
 ``--variant ds | oqs_own | oqs_target`` with ``--pairing <level>`` (the distill_sharing entries, thesis
 6.4, the data_sharing section) trains MSE students on the union of the tasks' datasets of that level:
 ``ds`` imitating the teachers trained on U_j D_{j->i}, ``oqs_<judge>`` the offline Q-switch over task
-i's teachers on D_{j->i} (MOP's own for j = i).
+i's teachers on D_{j->i} (MOP's own for j = i). ``--substitute <task>`` (the distill_substitute
+entries) trains them, or plain MOP's students (``--variant mop``), on the study's tasks with that
+task in place of its base task (stand_still for stand), on the base task's data relabelled;
+files ``mse-<variant>-<task>-<level>``.
 """
 
 from __future__ import annotations
@@ -68,6 +71,7 @@ def main() -> None:
     parser.add_argument("--variant", default="", help="a common-structure variant: w<width> or rank_<loss>")
     parser.add_argument("--seeds", type=int, nargs="+", default=None,
                         help="a subset of distill.seeds to train (default: all of them)")
+    parser.add_argument("--substitute", default="", help="a data_sharing substitute: its task set's students")
     args = parser.parse_args()
 
     params = load_params()
@@ -75,7 +79,12 @@ def main() -> None:
     grid, config = distill_grid(params, study, LOSS_ACTORS), distill_config(params, args.loss)
     structure_pairing, variants = structure_variants(params)
     sharing = sharing_grid(params, study)
-    sharing_variant = args.variant in sharing.students and args.pairing in sharing.levels
+    require(not args.substitute or args.substitute in sharing.substitutes, "--substitute",
+            f"one of data_sharing.substitutes {list(sharing.substitutes)}", args.substitute)
+    students = sharing.substitute_students if args.substitute else sharing.students
+    sharing_variant = args.variant in students and args.pairing in sharing.levels
+    require(not args.substitute or sharing_variant, "--variant", f"one of data_sharing.substitute_students "
+            f"{list(students)} with a --pairing of data_sharing.levels {list(sharing.levels)}", args.variant)
     require(not args.variant or (args.variant in variants and args.pairing == structure_pairing) or sharing_variant,
             "--variant", f"one of the common_structure variants {list(variants)} with --pairing {structure_pairing}, "
             f"or of data_sharing.students {list(sharing.students)} with a --pairing of data_sharing.levels "
@@ -89,8 +98,8 @@ def main() -> None:
         raise ConfigError(f"study.tasks: a multi-task student needs at least two tasks, got {list(study.tasks)}")
     levels = pairing_levels(args.pairing, study)
     if sharing_variant:
-        runs = [make_sharing_student(args.variant, args.pairing, seed, study.tasks, grid.teacher_seed)
-                for seed in seeds]
+        runs = [make_sharing_student(args.variant, args.pairing, seed, study.tasks, grid.teacher_seed,
+                                     args.substitute) for seed in seeds]
     elif args.variant:
         require(args.loss == "mse", "--loss", "mse for the common_structure students", args.loss)
         runs = [make_structure_student(args.variant, args.pairing, seed, study.tasks, levels, grid.teacher_seed)

@@ -6,7 +6,8 @@ Evaluates, each on ``eval.episodes`` episodes per task (the same episode seeds f
 every policy of the study's catalogue (mop_core/catalogue.py) on the tasks it was trained for: the
 behaviour snapshots, the teachers, the naive multi-task baseline and every student; and each task's
 deterministic teacher on every other task's reward (thesis 6.4.5). Returns also as normalised scores;
-IQM and probabilities of improvement on them (mop_core/eval_study.py).
+IQM and probabilities of improvement on them (mop_core/eval_study.py). A data_sharing substitute task
+(stand_still) has no collect run: its R_random is measured here, with as many random episodes.
 
 Writes results/eval/metrics.json (for `dvc metrics show/diff`), results/eval/returns.tsv (one row
 per policy group and task, for `dvc plots`), results/eval/returns.json (every episode's return),
@@ -24,6 +25,7 @@ from mop_core.eval_study import (
     evaluate_study,
     normalisers,
     print_summary,
+    substitute_normalisers,
     write_eval_outputs,
     write_eval_timing,
 )
@@ -31,6 +33,7 @@ from mop_core.evaluation import EvalConfig
 from mop_core.layout import COLLECT_METRICS, stage_dir, timing_file
 from mop_core.runtime import progress_enabled
 from mop_core.study import study_config, typed_section
+from mop_core.tasks import substitute_base
 
 
 def main() -> None:
@@ -41,6 +44,8 @@ def main() -> None:
     require_inputs(sorted({job.checkpoint for job in jobs}), "distill")
     require_inputs([COLLECT_METRICS], "collect")
     norms = normalisers(study.tasks, COLLECT_METRICS)
+    substitutes = {task: substitute_base(task) for task in catalogue.eval_tasks if task not in study.tasks}
+    norms |= substitute_normalisers(substitutes, norms, study.seed, study.episode_length, config.rollout_envs)
     evaluation = evaluate_study(catalogue, config, study.episode_length, norms, progress_enabled(study.progress))
     metrics = eval_metrics(evaluation, catalogue, config, norms)
     plotted = write_eval_outputs(stage_dir("eval"), evaluation, metrics, catalogue, config)

@@ -1,4 +1,5 @@
-"""relabel stage: the reward of every transition of every dataset under every study task.
+"""relabel stage: the reward of every transition of every dataset under every study task (and every
+data_sharing substitute task).
 
     python stages/relabel.py
 
@@ -18,7 +19,7 @@ from mop_core.data import write_json
 from mop_core.layout import dataset_file, relabel_file, stage_dir, timing_file
 from mop_core.relabel import RelabelConfig, relabel_dataset
 from mop_core.runtime import configure_compute
-from mop_core.study import study_config, typed_section
+from mop_core.study import sharing_grid, study_config, typed_section
 from mop_core.timings import per_second, write_timing
 
 
@@ -26,6 +27,8 @@ def main() -> None:
     params = load_params()
     study = study_config(params)
     config = typed_section(params, "relabel", RelabelConfig)
+    # the study's tasks and the substitutes, which learn from their base task's data (data_sharing)
+    reward_tasks = study.tasks + sharing_grid(params, study).substitutes
     sources = [(task, level) for task in study.tasks for level in study.levels]
     missing = [str(dataset_file(t, lv)) for t, lv in sources if not dataset_file(t, lv).is_file()]
     if missing:
@@ -35,13 +38,13 @@ def main() -> None:
     metrics = {}
     for task, level in sources:
         metrics[f"{task}-{level}"] = relabel_dataset(dataset_file(task, level), relabel_file(task, level),
-                                                     study.tasks, config, source_task=task, level=level)
+                                                     reward_tasks, config, source_task=task, level=level)
     write_json(stage_dir("relabel") / "metrics.json", metrics)
     seconds = time.perf_counter() - started
-    relabelled = sum(m["transitions"] for m in metrics.values()) * len(study.tasks)
+    relabelled = sum(m["transitions"] for m in metrics.values()) * len(reward_tasks)
     timing = write_timing(timing_file("relabel"), seconds, datasets=len(sources),
                           rewards_per_second=per_second(relabelled, seconds))
-    print(f"relabelled {len(sources)} datasets under {len(study.tasks)} tasks in {timing['seconds']} s")
+    print(f"relabelled {len(sources)} datasets under {len(reward_tasks)} tasks in {timing['seconds']} s")
 
 
 if __name__ == "__main__":

@@ -13,8 +13,10 @@ data/resume/teachers-<level>-<actor>.pt.
 
 ``--sharing`` trains the teachers on relabelled data of the data_sharing section (the
 train_shared_teachers entries; deterministic, seed distill.teacher_seed): ``ds``, per task i one
-teacher on the union over every task j of D_{j->i}; ``oqs``, per pair j != i one on D_{j->i}. Files
-as above under <kind>-<level>-deterministic/, named <task>-from-<tasks>-<level>-deterministic-<seed>.
+teacher on the union over every task j of D_{j->i}; ``oqs``, per pair j != i one on D_{j->i}, and for
+each data_sharing substitute its own teacher on D_{base->substitute} and its set's DS / OQS teachers
+(those not already trained). Files as above under <kind>-<level>-deterministic/, named
+<task>-from-<tasks>-<level>-deterministic-<seed>.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from common import check_level_and_seed, load_params, require_inputs, run_stage
 from mop_core.agents.pbrl import ACTOR_TYPES
 from mop_core.config import ConfigError, keys_under, require
 from mop_core.data import read_json
-from mop_core.runs import SHARING_KINDS, TeacherRun, sharing_teachers
+from mop_core.runs import SHARING_KINDS, TeacherRun, shared_teacher_runs, sharing_teacher_batch
 from mop_core.runtime import configure_compute, progress_enabled, resolve_device
 from mop_core.study import section, sharing_grid, study_config, teacher_grid
 from mop_core.teachers import DataSource, TeacherJob, teacher_config, train_teacher_group
@@ -34,7 +36,8 @@ from mop_core.teachers import DataSource, TeacherJob, teacher_config, train_teac
 
 def sharing_runs(params, study, level: str, actor: str, kind: str, tasks: list[str], seeds: list[int] | None
                  ) -> list[TeacherRun]:
-    """The data_sharing teachers of ``kind`` at ``level`` among ``tasks`` (their target task) and ``seeds``."""
+    """The data_sharing teachers of ``kind`` at ``level`` among ``tasks`` (their target task) and ``seeds``:
+    the catalogue's train_shared_teachers entry (with a substitute task set's teachers of that kind)."""
     grid = sharing_grid(params, study)
     require(level in grid.levels and kind in grid.teachers, "--level/--sharing",
             f"a level of data_sharing.levels {list(grid.levels)} and a kind of data_sharing.teachers "
@@ -44,7 +47,8 @@ def sharing_runs(params, study, level: str, actor: str, kind: str, tasks: list[s
     teacher_seed = section(params, "distill")["teacher_seed"]
     require(seeds is None or list(seeds) == [teacher_seed], "--seeds",
             f"[distill.teacher_seed] ([{teacher_seed}]): data-sharing teachers train that seed only", seeds)
-    return [run for run in sharing_teachers(study.tasks, level, (kind,), teacher_seed) if run.task in tasks]
+    return [run for run in shared_teacher_runs(study.tasks, level, grid.teachers, teacher_seed, grid.substitutes)
+            if run.batch == sharing_teacher_batch(kind, level, actor) and run.task in tasks]
 
 
 def main() -> None:
@@ -58,11 +62,12 @@ def main() -> None:
 
     params = load_params()
     study, grid = study_config(params), teacher_grid(params)
-    tasks = list(args.tasks or study.tasks)
+    known = study.tasks + (sharing_grid(params, study).substitutes if args.sharing else ())
+    tasks = list(args.tasks or known)
     seeds = list(args.seeds if args.seeds is not None else grid.seeds)
     for task in tasks:
-        if task not in study.tasks:
-            raise ConfigError(f"--tasks: expected a subset of study.tasks {list(study.tasks)}, got {task!r}")
+        if task not in known:
+            raise ConfigError(f"--tasks: expected a subset of study.tasks {list(known)}, got {task!r}")
     for seed in seeds:
         check_level_and_seed(study, args.level, seed)
         if seed not in grid.seeds:

@@ -63,10 +63,14 @@ def test_the_tiny_study_has_these_runs_in_this_order(catalogue):
     assert [s.name for s in catalogue.students] == ["mse-medium-0", "q-medium-0", "kl-medium-0", "mse-w8-medium-0",
                                                     "mse-rank_pairwise-medium-0", "mse-single_stand-medium-0",
                                                     "mse-single_walk-medium-0", "mse-ds-medium-0",
-                                                    "mse-oqs_own-medium-0", "mse-oqs_target-medium-0"]
+                                                    "mse-oqs_own-medium-0", "mse-oqs_target-medium-0",
+                                                    "mse-mop-stand_still-medium-0", "mse-oqs_own-stand_still-medium-0"]
     assert [t.name for t in catalogue.shared_teachers] == [
         "stand-from-stand+walk-medium-deterministic-0", "walk-from-stand+walk-medium-deterministic-0",
-        "stand-from-walk-medium-deterministic-0", "walk-from-stand-medium-deterministic-0"]
+        "stand-from-walk-medium-deterministic-0", "walk-from-stand-medium-deterministic-0",
+        # the substitute's set {stand_still, walk} on stand's and walk's data: walk's teachers are reused
+        "stand_still-from-stand-medium-deterministic-0", "stand_still-from-stand+walk-medium-deterministic-0",
+        "stand_still-from-walk-medium-deterministic-0"]
     assert [s.name for s in catalogue.mop_students()] == ["mse-medium-0", "q-medium-0", "kl-medium-0"]
     assert catalogue.teacher_seed == 0 and catalogue.teacher_actors == ("deterministic", "gaussian")
 
@@ -81,8 +85,8 @@ def test_run_names_groups_and_files(catalogue):
     assert teacher.paths.metrics == Path("results/teachers/metrics/medium-gaussian/stand-medium-gaussian-0.json")
     assert teacher.paths.curve == Path("results/teachers/curves/medium-gaussian/stand-medium-gaussian-0.tsv")
     assert teacher.paths.resume == Path("data/resume/teachers-medium-gaussian.pt")
-    assert teacher.dataset == Path("data/datasets/stand-medium.hdf5")
-    assert teacher.relabel == Path("data/relabelled/stand-medium.hdf5")
+    assert teacher.datasets == (Path("data/datasets/stand-medium.hdf5"),)
+    assert teacher.relabels == (Path("data/relabelled/stand-medium.hdf5"),)
     multitask = catalogue.multitask[0]
     assert multitask.name == "medium-0" and multitask.group == "multitask_medium"
     assert multitask.paths.checkpoint == Path("data/multitask/medium-0.pt")
@@ -104,7 +108,7 @@ def test_run_names_groups_and_files(catalogue):
 
 def test_kl_students_learn_from_gaussian_teachers_mse_and_q_from_deterministic_ones(catalogue):
     for student in catalogue.students:
-        if student.variant == "ds":  # data sharing: the teachers on U_j D_{j->i}
+        if student.variant == "ds" or student.substitute:  # data sharing: the teachers on U_j D_{j->i}
             continue
         actor = "gaussian" if student.loss == "kl" else "deterministic"
         tasks = TASKS if not student.single_task else (student.variant.removeprefix("single_"),)
@@ -224,7 +228,7 @@ def test_the_teacher_seed_students_learn_from(tiny_params):
 
 def test_data_sharing_runs_their_teachers_files_and_eval_jobs(catalogue):
     """DS: task i's teacher on U_j D_{j->i}; OQS: task i's teachers on D_{j->i}, j != i, and MOP's for j = i."""
-    ds, _, oqs_stand, _ = catalogue.shared_teachers
+    ds, _, oqs_stand, _ = catalogue.shared_teachers[:4]  # the study's tasks' (the substitute's set follows)
     assert ds.data_tasks == ("stand", "walk") and ds.sharing == "ds" and ds.group == "teacher_ds_medium_deterministic"
     assert ds.datasets == (Path("data/datasets/stand-medium.hdf5"), Path("data/datasets/walk-medium.hdf5"))
     assert ds.relabels == (Path("data/relabelled/stand-medium.hdf5"), Path("data/relabelled/walk-medium.hdf5"))
@@ -235,7 +239,7 @@ def test_data_sharing_runs_their_teachers_files_and_eval_jobs(catalogue):
     assert oqs_stand.batch == "oqs-medium-deterministic"
     assert set(catalogue.shared_teacher_batches()) == {"ds-medium-deterministic", "oqs-medium-deterministic"}
     plain = catalogue.teachers[0]
-    assert plain.sharing == "" and plain.datasets == (plain.dataset,)  # MOP's teachers are unchanged
+    assert plain.sharing == "" and plain.datasets == (Path("data/datasets/stand-medium.hdf5"),)  # MOP's: unchanged
     students = {s.variant: s for s in catalogue.sharing_students()}
     assert set(students) == {"ds", "oqs_own", "oqs_target"}
     assert students["ds"].teachers == catalogue.shared_teachers[:2] and not students["ds"].candidates
@@ -248,9 +252,54 @@ def test_data_sharing_runs_their_teachers_files_and_eval_jobs(catalogue):
     assert own.group == "student_mse-oqs_own_medium" and own.batch == "mse-oqs_own-medium"
     jobs = [(j.group, j.eval_task) for j in catalogue.eval_jobs() if "_ds_" in j.group or "_from_" in j.group]
     assert jobs == [("teacher_ds_medium_deterministic", "stand"), ("teacher_from_walk_medium_deterministic", "stand"),
-                    ("teacher_ds_medium_deterministic", "walk"), ("teacher_from_stand_medium_deterministic", "walk")]
+                    ("teacher_ds_medium_deterministic", "walk"), ("teacher_from_stand_medium_deterministic", "walk"),
+                    ("teacher_from_stand_medium_deterministic", "stand_still"),  # the substitute's own teacher
+                    ("teacher_ds_medium_deterministic", "stand_still"),
+                    ("teacher_from_walk_medium_deterministic", "stand_still")]
     assert ("student_mse-oqs_target_medium", "student_mse_medium") in catalogue.student_comparisons()
     assert catalogue.references()["student_mse-ds_medium"]["walk"].group == "teacher_ds_medium_deterministic"
+
+
+def test_a_substitute_runs_mop_ds_and_oqs_on_its_task_set_from_its_base_tasks_data(catalogue):
+    """data_sharing.substitutes [stand_still]: the set {stand_still, walk} where stand_still learns from
+    stand's datasets relabelled (D_{stand->stand_still}); walk's teachers are the study set's."""
+    own, ds, from_walk = catalogue.shared_teachers[4:]
+    assert (own.task, own.data_tasks, own.batch) == ("stand_still", ("stand",), "oqs-medium-deterministic")
+    assert own.datasets == (Path("data/datasets/stand-medium.hdf5"),)
+    assert own.relabels == (Path("data/relabelled/stand-medium.hdf5"),)  # its stand_still column
+    assert (ds.data_tasks, ds.batch) == (("stand", "walk"), "ds-medium-deterministic")
+    assert (from_walk.data_tasks, from_walk.group) == (("walk",), "teacher_from_walk_medium_deterministic")
+    mop, oqs = catalogue.substitute_students()
+    assert (mop.name, mop.batch, mop.group) == ("mse-mop-stand_still-medium-0", "mse-mop-stand_still-medium",
+                                                "student_mse-mop_stand_still-medium")
+    assert mop.tasks == ("stand_still", "walk") and mop.data_tasks == ("stand", "walk")
+    assert mop.teachers == (own, TeacherRun("walk", "medium", "deterministic", 0)) and not mop.shared_states
+    assert mop.datasets == (Path("data/datasets/stand-medium.hdf5"), Path("data/datasets/walk-medium.hdf5"))
+    assert [[t.name for t in c] for c in oqs.candidates] == [
+        ["stand_still-from-stand-medium-deterministic-0", "stand_still-from-walk-medium-deterministic-0"],
+        ["walk-from-stand-medium-deterministic-0", "walk-medium-deterministic-0"]]
+    assert oqs.state_datasets == mop.datasets and oqs.structure_group == "mse-oqs_own_stand_still-medium"
+    assert catalogue.eval_tasks == ("stand", "walk", "stand_still")
+    assert catalogue.references()["student_mse-mop_stand_still-medium"] == {
+        "stand_still": Reference("teacher_from_stand_medium_deterministic", 0),
+        "walk": Reference("teacher_medium_deterministic", 0)}
+    assert ("student_mse-oqs_own_stand_still-medium", "student_mse-mop_stand_still-medium") in \
+        catalogue.student_comparisons()
+    assert mop not in catalogue.mop_students()
+    assert oqs not in catalogue.variant_students() + catalogue.sharing_students()
+
+
+@pytest.mark.parametrize("sharing, error", [
+    ({"substitutes": ["walk"]}, r"data_sharing.substitutes\[0\]: expected a task outside study.tasks"),
+    ({"substitutes": ["run"]}, r"data_sharing.substitutes\[0\]: expected a task outside study.tasks whose base"),
+    ({"substitutes": ["sit"]}, r"data_sharing.substitutes\[0\]: unknown task 'sit'"),
+    ({"teachers": ["ds"], "students": ["ds"], "substitute_students": ["ds"]},
+     r"data_sharing.substitutes: expected oqs in teachers"),
+    ({"substitute_students": ["mse"]}, r"data_sharing.substitute_students\[0\]: expected one of mop, ds"),
+])
+def test_substitute_errors_name_the_parameter(tiny_params, sharing, error):
+    with pytest.raises(ConfigError, match=error):
+        build_catalogue(_with(tiny_params, data_sharing=sharing))
 
 
 def test_no_data_sharing_runs_when_the_section_is_empty(tiny_params):
@@ -338,11 +387,11 @@ def test_student_inputs_record_the_teachers_and_datasets_by_content(catalogue, t
     batch = catalogue.student_batches()["mse-medium"]
     student = batch[0]
     assert [run.name for run in batch] == [f"mse-medium-{seed}" for seed in catalogue_seeds(catalogue)]
-    for i, teacher in enumerate(student.teachers):
+    for i, (teacher, dataset) in enumerate(zip(student.teachers, student.datasets)):
         teacher.paths.checkpoint.parent.mkdir(parents=True, exist_ok=True)
         teacher.paths.checkpoint.write_bytes(b"teacher %d" % i)
-        teacher.dataset.parent.mkdir(parents=True, exist_ok=True)
-        with h5py.File(teacher.dataset, "w") as h5:
+        dataset.parent.mkdir(parents=True, exist_ok=True)
+        with h5py.File(dataset, "w") as h5:
             h5.attrs["content_sha256"] = f"content-{teacher.task}"
     record = student_inputs(batch)
     assert record == {
@@ -363,7 +412,7 @@ def test_student_inputs_record_the_teachers_and_datasets_by_content(catalogue, t
     assert str(where) in message
     student.teachers[1].paths.checkpoint.write_bytes(b"teacher 1")
     check_student_inputs(batch, record, where)
-    with h5py.File(student.teachers[0].dataset, "a") as h5:
+    with h5py.File(student.datasets[0], "a") as h5:
         h5.attrs["content_sha256"] = "recollected"
     with pytest.raises(InputFileError, match=r"^data/datasets/stand-medium.hdf5: "):
         check_student_inputs(batch, record, where)

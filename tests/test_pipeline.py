@@ -68,6 +68,34 @@ def test_repro_trains_the_data_sharing_teachers_and_students(repo):
     assert {"mse-ds_medium", "mse-oqs_own_medium", "mse-oqs_target_medium"} <= set(shared["groups"])
 
 
+def test_repro_runs_the_substitute_task_set_on_its_base_tasks_relabelled_data(repo):
+    """data_sharing.substitutes [stand_still]: relabel adds its reward column, its teachers train with the
+    OQS ones, its set's students (distill_substitute) are evaluated on stand_still, normalised by an R_random
+    the eval stage measured, and measured and reported like the study set's."""
+    import h5py
+
+    with h5py.File(repo / "data" / "relabelled" / "stand-medium.hdf5") as h5:
+        assert {"stand", "walk", "stand_still"} <= set(h5["rewards"])
+    teachers = repo / "data" / "teachers" / "oqs-medium-deterministic"
+    assert (teachers / "stand_still-from-stand-medium-deterministic-0.pt").is_file()
+    payload = torch.load(repo / "data/students/mse-mop-stand_still-medium/mse-mop-stand_still-medium-0.pt",
+                         weights_only=False)
+    assert payload["tasks"] == ["stand_still", "walk"]
+    evaluation = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
+    assert evaluation["normalisation"]["stand_still"]["random_source"] == "eval stage"
+    for group in ("student_mse-mop_stand_still-medium", "student_mse-oqs_own_stand_still-medium",
+                  "teacher_from_stand_medium_deterministic"):
+        assert evaluation["stand_still"][group]["n"] == 3 and "normalised" in evaluation["stand_still"][group]
+    shares = json.loads((repo / "results/students/metrics/mse-oqs_own-stand_still-medium/"
+                         "mse-oqs_own-stand_still-medium-0.json").read_text())["q_switch"]
+    assert set(shares) == {"stand_still", "walk"} and set(shares["stand_still"]) == {"stand", "walk"}
+    shared = json.loads((repo / "results" / "shared_computation" / "metrics.json").read_text())
+    assert list(shared["groups"]["mse-mop_stand_still-medium"]["pairs"]) == ["stand_still-walk"]
+    report = (repo / "results" / "report.md").read_text()
+    assert "### Second task set: {stand_still, walk} (stand_still on stand's data)" in report
+    assert (repo / "results" / "report" / "sharing_stand_still.png").read_bytes()[:4] == b"\x89PNG"
+
+
 def test_repro_trains_single_task_students_as_the_no_sharing_reference(repo):
     """common_structure.single_task: per task a one-task student group (distill_single), evaluated on its
     task only, and per seed the pair measured as one student's two ids in shared_computation."""
@@ -128,7 +156,9 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
         "student_mse-w8_medium_vs_teachers", "student_mse-rank_pairwise_medium_vs_teachers",
         "student_mse-w8_medium_vs_student_mse_medium", "student_mse-rank_pairwise_medium_vs_student_mse_medium",
         *(f"student_mse-{v}_medium_vs_{y}" for v in ("ds", "oqs_own", "oqs_target", "single_stand", "single_walk")
-          for y in ("teachers", "student_mse_medium"))}
+          for y in ("teachers", "student_mse_medium")),
+        "student_mse-mop_stand_still-medium_vs_teachers", "student_mse-oqs_own_stand_still-medium_vs_teachers",
+        "student_mse-oqs_own_stand_still-medium_vs_student_mse-mop_stand_still-medium"}
     assert all(0 <= a["ci_low"] <= a["value"] <= a["ci_high"] <= 1
                for a in aggregate["probability_of_improvement"].values())
     assert set(evaluation["cross_task"]["medium"]["stand"]) == {"stand", "walk", "stand_still"}  # + transfer task
@@ -188,7 +218,7 @@ def test_the_readme_shows_the_tested_commands():
 def test_metrics_show_holds_the_headline_numbers_and_the_timings_apart(repo):
     shown = json.loads(_run(["dvc", "metrics", "show", "--json"], repo).stdout)[""]["data"]
     assert all(path == "results/metrics.json" or path.startswith("results/timings/") for path in shown), shown
-    assert len([path for path in shown if path.startswith("results/timings/")]) == 19  # one per stage entry
+    assert len([path for path in shown if path.startswith("results/timings/")]) == 21  # one per stage entry
     headline = shown["results/metrics.json"]["data"]
     assert headline == json.loads((repo / "results" / "metrics.json").read_text())
     evaluation = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
@@ -206,7 +236,7 @@ def test_metrics_show_holds_the_headline_numbers_and_the_timings_apart(repo):
     rows = [line for line in table.splitlines() if line.strip()]
     assert "normalised_return.student_mse_medium.stand" in table and len(rows) == 3  # header, rule, one row
     timings = _run(_command(TIMINGS_SHOW, "--md"), repo).stdout
-    assert timings.count("results/timings/") == 19 and "normalised_return" not in timings
+    assert timings.count("results/timings/") == 21 and "normalised_return" not in timings
 
 
 def test_every_plot_renders_and_only_the_current_runs_are_drawn(repo):
@@ -347,7 +377,9 @@ def test_exp_run_of_distill_param_reruns_only_distill_and_what_reads_students(re
     assert _stages_run(out) == {"params", "distill@mse-medium", "distill@q-medium", "distill@kl-medium",
                                 "distill_width@8", "distill_ranking@pairwise", "distill_single@stand",
                                 "distill_single@walk", "distill_sharing@medium-ds",
-                                "distill_sharing@medium-oqs_own", "distill_sharing@medium-oqs_target", "eval",
+                                "distill_sharing@medium-oqs_own", "distill_sharing@medium-oqs_target",
+                                "distill_substitute@stand_still-medium-mop",
+                                "distill_substitute@stand_still-medium-oqs_own", "eval",
                                 "shared_computation", "report"}
     metrics = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
     assert "student_mse_medium" in metrics["stand"]

@@ -198,3 +198,34 @@ def test_the_data_sharing_section_shows_figure_6_9_table_6_2_and_the_q_switch_sh
     assert "| medium | OQS (own critics) | stand | D_stand->stand: 0.700, D_walk->stand: 0.300 |" in markdown
     empty = sharing_section(_full_results(), tmp_path / "fig", "fig/")
     assert "Not part of this run: the data-sharing students" in empty
+
+
+def test_the_sharing_section_repeats_figure_6_9_and_table_6_2_on_a_substitutes_task_set(tmp_path):
+    """{stand_still, walk}: stand_still's MOP teacher is its teacher on D_stand->stand_still (an eval group of
+    teachers on stand's data), its students the set's 'mop', 'ds', 'oqs_own' groups."""
+    from mop_core.report_sharing import sharing_section
+    results = _full_results()
+    results.evaluation["stand_still"] = {"teacher_from_stand_medium_deterministic": _entry(600.0),
+                                         "teacher_from_walk_medium_deterministic": _entry(60.0),
+                                         "student_mse-mop_stand_still-medium": _entry(540.0, 3, "training_seed",
+                                                                                     (0, 1, 2)),
+                                         "student_mse-oqs_own_stand_still-medium": _entry(300.0, 3, "training_seed",
+                                                                                         (0, 1, 2))}
+    results.evaluation["walk"] |= {"student_mse-mop_stand_still-medium": _entry(450.0, 3, "training_seed", (0, 1, 2))}
+    shares = {"stand_still": {"stand": 0.4, "walk": 0.6}, "walk": {"stand": 0.2, "walk": 0.8}}
+    results.substitutes = [Run({"loss": "mse", "variant": variant, "pairing": "medium", "substitute": "stand_still"},
+                               seed, {"q_switch": shares} if variant == "oqs_own" else {}, [])
+                           for variant in ("mop", "oqs_own") for seed in (0, 1, 2)]
+    layer = results.shared["groups"]["mse_medium"]["pairs"]["stand-walk"]["layer1"]
+    results.shared["groups"]["mse-oqs_own_stand_still-medium"] = {"students": 3, "pairs": {"stand_still-walk": {
+        "layer1": layer | {"per_state_tau_a_mean": 0.33}}}}
+    markdown = sharing_section(results, tmp_path / "fig", "fig/")
+    second = markdown[markdown.index("### Second task set: {stand_still, walk} (stand_still on stand's data)"):]
+    assert (tmp_path / "fig" / "sharing_stand_still.png").read_bytes()[:4] == b"\x89PNG"
+    assert "| medium | stand_still | MOP teacher | 600.0 [590.0, 610.0] (n=30 episodes)" in second
+    assert "| medium | stand_still | OQS teacher on D_walk->stand_still | 60.0" in second and "| 0.10 |" in second
+    assert "| medium | stand_still | MOP student | 540.0 [530.0, 550.0] (n=3 seeds)" in second
+    assert "| medium | walk | MOP student | 450.0" in second
+    assert "| medium | OQS (own critics) | stand_still-walk | 1 | 0.330 |" in markdown  # Table 6.2, no thesis value
+    assert "| medium | OQS (own critics) | stand_still | D_stand->stand_still: 0.400, D_walk->stand_still: 0.600 |" \
+        in markdown

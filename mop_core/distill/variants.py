@@ -10,7 +10,8 @@ The single-task students (``single_<task>``, the no-sharing reference of shared_
 every setting too: they learn from one task's teacher and dataset only (one task id;
 mop_core.catalogue.make_structure_student).
 
-The data-sharing students (6.4: ``ds``, ``oqs_own``, ``oqs_target``) keep every distillation setting:
+The data-sharing students (6.4: ``ds``, ``oqs_own``, ``oqs_target``; ``mop``, plain MOP on a substituted
+task set) keep every distillation setting:
 what changes is what they learn from (other teachers, the union of the tasks' states:
 mop_core.catalogue.make_sharing_student), so their config is plain MOP's.
 
@@ -26,7 +27,7 @@ from typing import TYPE_CHECKING
 
 from mop_core.ranking import RANKING_LOSSES
 from mop_core.runs import RANKING_PREFIX, WIDTH_PREFIX, single_task_of
-from mop_core.study import SHARING_STUDENTS
+from mop_core.study import SUBSTITUTE_STUDENTS
 
 if TYPE_CHECKING:
     from mop_core.distill.distiller import DistillConfig
@@ -34,7 +35,7 @@ if TYPE_CHECKING:
 
 def variant_config(config: "DistillConfig", variant: str) -> "DistillConfig":
     """``config`` with ``variant``'s change ("" = plain MOP: unchanged)."""
-    if not variant or variant in SHARING_STUDENTS or single_task_of(variant):
+    if not variant or variant in SUBSTITUTE_STUDENTS or single_task_of(variant):
         return config
     if variant.startswith(RANKING_PREFIX) and variant[len(RANKING_PREFIX):] in RANKING_LOSSES:
         return replace(config, ranking=replace(config.ranking, loss=variant[len(RANKING_PREFIX):]))
@@ -43,4 +44,4 @@ def variant_config(config: "DistillConfig", variant: str) -> "DistillConfig":
         sizes = (int(width),) * len(config.student.hidden_sizes)
         return replace(config, student=replace(config.student, hidden_sizes=sizes))
     raise ValueError(f"variant: expected '', w<width>, rank_<one of {tuple(RANKING_LOSSES)}>, single_<task> or one of "
-                     f"{tuple(SHARING_STUDENTS)}, got {variant!r}")
+                     f"{tuple(SUBSTITUTE_STUDENTS)}, got {variant!r}")
