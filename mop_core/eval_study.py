@@ -35,7 +35,9 @@ AGGREGATE_NOTE = ("IQM: interquartile mean of normalised scores pooled over task
                   "P(X > Y): per task the share of (x, y) score pairs with x > y (ties 1/2), averaged over tasks; "
                   "X vs teachers compares with the teacher runs X learned from. 95% percentile intervals of a "
                   "stratified bootstrap ({reps} replicates) over runs x episodes within each task (Agarwal et al. "
-                  "2021, rliable).")
+                  "2021, rliable). A group's IQM pools the tasks its policies were trained for; a teacher group "
+                  "pools the study's tasks only (a substitute task's teachers, e.g. stand_still's on stand's data, "
+                  "share the group names of the study set's teachers of their kind).")
 
 
 @dataclass
@@ -115,6 +117,14 @@ def ratio_entries(summary: dict, references: dict[str, dict[str, Reference]], ta
     return out
 
 
+def iqm_tasks(group: str, tasks, catalogue: Catalogue) -> list[str]:
+    """The tasks a group's IQM pools: every task for a student or baseline group; the study's tasks
+    for the others (teachers: a substitute's teacher shares its kind's group name, so pooling its
+    task would mix the study set's teachers with the substitute set's)."""
+    students = {run.group for run in catalogue.students} | {run.group for run in catalogue.multitask}
+    return [task for task in tasks if group in students or task in catalogue.tasks]
+
+
 def aggregates(scores: dict, catalogue: Catalogue, config: EvalConfig) -> dict:
     """IQM per group and probabilities of improvement, on normalised scores."""
     def pooled(group: str, task: str, seed: int | None = None) -> np.ndarray:
@@ -125,7 +135,8 @@ def aggregates(scores: dict, catalogue: Catalogue, config: EvalConfig) -> dict:
         return derive_seeds([catalogue.study_seed, "eval", "bootstrap", name], ("bootstrap",))["bootstrap"]
 
     reps = config.bootstrap_reps
-    iqm = {group: iqm_summary({task: pooled(group, task) for task in scores[group]}, reps, seed_of(group))
+    iqm = {group: iqm_summary({task: pooled(group, task) for task in iqm_tasks(group, scores[group], catalogue)},
+                              reps, seed_of(group))
            for group in scores if not is_cross_group(group)}
     improvement = {}
     for group, by_task in catalogue.references().items():

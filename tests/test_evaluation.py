@@ -126,3 +126,18 @@ def test_a_checkpoint_of_unknown_kind_is_rejected(tmp_path):
     torch.save({"kind": "oracle"}, tmp_path / "x.pt")
     with pytest.raises(InputFileError, match="x.pt: not a policy checkpoint of this study .kind 'oracle'"):
         load_policy(tmp_path / "x.pt")
+
+
+def test_a_teacher_groups_iqm_pools_the_studys_tasks_and_a_student_groups_all_of_its_tasks(tiny_params):
+    """A substitute's teachers share their kind's group name (stand_still's own teacher, on stand's data, is
+    in teacher_from_stand_..., with walk's OQS teacher): their IQM keeps to the study's tasks; the substitute
+    set's students pool theirs."""
+    from mop_core.catalogue import build_catalogue
+    from mop_core.eval_study import iqm_tasks
+
+    catalogue = build_catalogue(tiny_params)
+    tasks = ["walk", "stand_still"]
+    assert iqm_tasks("teacher_from_stand_medium_deterministic", tasks, catalogue) == ["walk"]
+    assert iqm_tasks("student_mse-mop_stand_still-medium", ["stand_still", "walk"], catalogue) == [
+        "stand_still", "walk"]
+    assert iqm_tasks("multitask_medium", ["stand", "walk"], catalogue) == ["stand", "walk"]

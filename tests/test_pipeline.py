@@ -86,6 +86,9 @@ def test_repro_runs_the_substitute_task_set_on_its_base_tasks_relabelled_data(re
     for group in ("student_mse-mop_stand_still-medium", "student_mse-oqs_own_stand_still-medium",
                   "teacher_from_stand_medium_deterministic"):
         assert evaluation["stand_still"][group]["n"] == 3 and "normalised" in evaluation["stand_still"][group]
+    iqm = evaluation["aggregate"]["iqm_normalised"]
+    assert iqm["student_mse-mop_stand_still-medium"]["tasks"] == "stand_still, walk"
+    assert iqm["teacher_from_stand_medium_deterministic"]["tasks"] == "walk"  # the study set's OQS teacher only
     shares = json.loads((repo / "results/students/metrics/mse-oqs_own-stand_still-medium/"
                          "mse-oqs_own-stand_still-medium-0.json").read_text())["q_switch"]
     assert set(shares) == {"stand_still", "walk"} and set(shares["stand_still"]) == {"stand", "walk"}
