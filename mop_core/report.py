@@ -583,8 +583,11 @@ def cross_task_section(results: StudyResults) -> str:
             "teacher under every task's reward (same episode seeds as section 2). Best per task: "
             + "; ".join(best) + ".", ""]
     if transfer:
-        out += [f"{', '.join(transfer)}: evaluation only (`eval.transfer_tasks`), no policy trains on it. "
-                + " ".join(TRANSFER_NOTES.get(t, "") for t in transfer), ""]
+        trained = sorted({r.key["substitute"] for r in results.substitutes} & set(transfer))
+        where = (f" ({', '.join(trained)}: section 7b's second task set trains on it, from its base task's data)"
+                 if trained else "")
+        out += [f"{', '.join(transfer)}: not a study task (`eval.transfer_tasks`): no study teacher trains on it"
+                f"{where}. " + " ".join(TRANSFER_NOTES.get(t, "") for t in transfer), ""]
     return "\n".join(out)
 
 

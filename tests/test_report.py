@@ -103,7 +103,8 @@ def test_report_shows_the_runs_numbers_in_thesis_order_and_draws_the_figures_it_
     assert "mse-medium-0 stand: 0.02, 0.12" in markdown  # dead, dormant share
     assert ("| medium | walk teacher | 286.6 [276.6, 296.6] (n=20 episodes) | 205.1 [195.1, 215.1] (n=20 episodes) "
             "| 3.1 [-6.9, 13.1] (n=20 episodes) |") in markdown  # Table 6.3 row with the transfer task's column
-    assert "stand_still: evaluation only" in markdown and "margin 0.5 m/s" in markdown
+    assert "stand_still: not a study task (`eval.transfer_tasks`): no study teacher trains on it." in markdown
+    assert "margin 0.5 m/s" in markdown
     assert "medium stand_still: the stand teacher (380.2)" in markdown
     assert "the walk teacher (205.1)" in markdown
     assert "1.05" in markdown  # student / teacher = 426.1 / 404.55
@@ -229,3 +230,8 @@ def test_the_sharing_section_repeats_figure_6_9_and_table_6_2_on_a_substitutes_t
     assert "| medium | OQS (own critics) | stand_still-walk | 1 | 0.330 |" in markdown  # Table 6.2, no thesis value
     assert "| medium | OQS (own critics) | stand_still | D_stand->stand_still: 0.400, D_walk->stand_still: 0.600 |" \
         in markdown
+    from mop_core.report import cross_task_section
+    results.evaluation["cross_task"] = {"medium": {task: {"stand": _entry(400.0), "stand_still": _entry(100.0)}
+                                                   for task in TASKS}}
+    assert "(stand_still: section 7b's second task set trains on it, from its base task's data)" in \
+        cross_task_section(results)
