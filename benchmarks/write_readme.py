@@ -43,6 +43,7 @@ BENCHES = [
     Bench("reference", "bench_reference.py", threads=True, quick_flag="--quick-only"),
     Bench("distill", "bench_distill.py", threads=True, quick_flag=None),
     Bench("structure", "bench_structure.py", threads=True, quick_flag=None),
+    Bench("shift", "bench_shift.py", threads=True, quick_flag=None),
 ]
 BY_NAME = {b.name: b for b in BENCHES}
 
