@@ -43,7 +43,7 @@ from mop_core.study import (
     study_config,
     teacher_grid,
 )
-from mop_core.tasks import substitute_base, substitute_tasks
+from mop_core.tasks import data_tasks, substitute_tasks
 
 LOSS_ACTORS = {name: loss.teacher_actor for name, loss in LOSSES.items()}  # what distill_grid checks
 
@@ -218,12 +218,11 @@ def make_sharing_student(variant: str, level: str, seed: int, tasks: tuple[str, 
     D_{j->i} for every j (i = j: MOP's own teacher, reused), its ``teachers`` MOP's. With a
     ``substitute``, on the substituted task set (``tasks`` with its base task replaced, the base's
     datasets relabelled to it); there ``mop`` is plain MOP's student of that set."""
-    base = substitute_base(substitute) if substitute else ""
     if substitute:
         tasks = substitute_tasks(tasks, substitute)
-    data = tuple(base if task == substitute and substitute else task for task in tasks)
+    data = data_tasks(tasks, substitute)
     own = tuple(own_teacher(task, source, level, teacher_seed) for task, source in zip(tasks, data))
-    where = {"substitute": substitute, "base": base}
+    where = {"substitute": substitute}
     if variant == "mop":
         return StudentRun("mse", level, seed, own, variant, **where)
     if variant == "ds":

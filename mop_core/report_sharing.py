@@ -25,7 +25,7 @@ from mop_core.runs import (
     student_group,
     student_recipe,
 )
-from mop_core.tasks import substitute_base, substitute_tasks
+from mop_core.tasks import data_tasks, substitute_tasks
 
 # Thesis Table 6.2 (walk x stand students, tau-a per layer, one seed): the reference the measured
 # rows sit next to. Expert x Expert's OQS row has no approach label in the thesis's text; it is the
@@ -65,9 +65,8 @@ def task_sets(results: StudyResults) -> list[TaskSet]:
     """The study's task set, then each substitute's (in the order its students were loaded)."""
     sets = [TaskSet(tuple(results.tasks), tuple(results.tasks))]
     for substitute in dict.fromkeys(r.key["substitute"] for r in results.substitutes):
-        base = substitute_base(substitute)
         tasks = substitute_tasks(tuple(results.tasks), substitute)
-        sets.append(TaskSet(tasks, tuple(base if t == substitute else t for t in tasks), substitute))
+        sets.append(TaskSet(tasks, data_tasks(tasks, substitute), substitute))
     return sets
 
 

@@ -29,7 +29,7 @@ from typing import Sequence
 
 from mop_core.artifacts import RunPaths
 from mop_core.layout import behaviour_checkpoint, dataset_file, relabel_file, run_paths, tau_curves_dir
-from mop_core.tasks import substitute_base, substitute_tasks
+from mop_core.tasks import data_tasks, substitute_base, substitute_tasks
 
 BEHAVIOUR_LEVELS = ("medium", "expert")  # the collect stage's snapshots
 
@@ -236,7 +236,6 @@ class StudentRun:
     candidates: tuple[tuple[TeacherRun, ...], ...] = ()  # OQS: per task i, its teachers on D_{j->i} for every j
     shared_states: bool = False  # states from the union of every task's dataset (DS, OQS), not each task's own
     substitute: str = ""  # the task standing in for its base task in this student's task set (data_sharing)
-    base: str = ""  # that base task: the substitute's states and data are the base task's datasets
     family = "students"
 
     @property
@@ -251,7 +250,7 @@ class StudentRun:
     @property
     def data_tasks(self) -> tuple[str, ...]:
         """Per task, the task whose datasets hold its own states (a substitute's: its base task's)."""
-        return tuple(self.base if task == self.substitute and self.substitute else task for task in self.tasks)
+        return data_tasks(self.tasks, self.substitute)
 
     @property
     def single_task(self) -> bool:
@@ -346,8 +345,7 @@ def shared_teacher_runs(tasks: Sequence[str], level: str, kinds: Sequence[str], 
     other tasks' OQS teachers on the base task's data are the study set's)."""
     runs = list(sharing_teachers(tasks, level, kinds, seed))
     for substitute in substitutes:
-        base = substitute_base(substitute)
         replaced = substitute_tasks(tuple(tasks), substitute)
-        data = tuple(base if task == substitute else task for task in replaced)
-        runs += [own_teacher(substitute, base, level, seed), *sharing_teachers(replaced, level, kinds, seed, data)]
+        runs += [own_teacher(substitute, substitute_base(substitute), level, seed),
+                 *sharing_teachers(replaced, level, kinds, seed, data_tasks(replaced, substitute))]
     return tuple(run for run in dict.fromkeys(runs) if run.sharing)

@@ -175,3 +175,8 @@ def substitute_tasks(tasks: tuple[str, ...], substitute: str) -> tuple[str, ...]
     """The task set of a substitute: ``tasks`` with its base task replaced by it, in the same order."""
     base = substitute_base(substitute)
     return tuple(substitute if task == base else task for task in tasks)
+
+
+def data_tasks(tasks: tuple[str, ...], substitute: str = "") -> tuple[str, ...]:
+    """Per task of a set, the task whose datasets are its own: itself, but a substitute's base task."""
+    return tuple(substitute_base(task) if substitute and task == substitute else task for task in tasks)

@@ -129,3 +129,12 @@ def test_stillness_rejects_bad_settings():
         Stillness(margin=0.0)
     with pytest.raises(ValueError, match="move_speed 0"):
         WalkerTask("walk_still", 1.0, "walk", 980.0, stillness=Stillness(margin=0.5))
+
+
+def test_a_substitutes_set_replaces_its_base_task_and_learns_from_its_data():
+    from mop_core.tasks import data_tasks, substitute_base, substitute_tasks
+
+    assert substitute_base("stand_still") == "stand"
+    assert substitute_tasks(("walk", "stand"), "stand_still") == ("walk", "stand_still")
+    assert data_tasks(("walk", "stand_still"), "stand_still") == ("walk", "stand")
+    assert data_tasks(("stand", "walk")) == ("stand", "walk")
