@@ -25,12 +25,14 @@ from mop_core.runs import (
     MultitaskRun,
     StudentRun,
     TeacherRun,
+    composed_variant,
     cross_group,
     own_teacher,
     ranking_variant,
     shared_teacher_runs,
     single_task_of,
     single_variant,
+    size_variant,
     width_variant,
 )
 from mop_core.runtime import derive_seeds
@@ -39,6 +41,7 @@ from mop_core.study import (
     multitask_grid,
     pairing_levels,
     sharing_grid,
+    shift_grid,
     structure_grid,
     study_config,
     teacher_grid,
@@ -85,11 +88,14 @@ class Catalogue:
     teacher_seed: int  # the teacher seed students learn from and cross-task tables show
     teacher_actors: tuple[str, ...]
     shared_teachers: tuple[TeacherRun, ...] = ()  # teachers on relabelled data (data_sharing: DS, OQS)
+    # the state-shift students (thesis 5.2: composed data x width, dataset size). Not eval-stage policies:
+    # the state_shift stage reads their distill runs' final evaluations (n = distill.seeds per point)
+    shift_students: tuple[StudentRun, ...] = ()
 
     def student_batches(self) -> dict[str, list[StudentRun]]:
         """distill entry (``<loss>-<pairing>``) -> the students it trains together (one per seed)."""
         batches: dict[str, list[StudentRun]] = {}
-        for run in self.students:
+        for run in self.students + self.shift_students:
             batches.setdefault(run.batch, []).append(run)
         return batches
 
@@ -244,6 +250,14 @@ def make_structure_student(variant: str, pairing: str, seed: int, tasks: tuple[s
     return make_student("mse", pairing, seed, tasks, levels, teacher_seed, variant)
 
 
+def shift_variants(params: Mapping[str, Any]) -> tuple[str, tuple[str, ...]]:
+    """The state_shift section's pairing and student variants: per composed dataset every width, then
+    the dataset sizes."""
+    grid = shift_grid(params, study_config(params))
+    return grid.pairing, (tuple(composed_variant(d, w) for d in grid.datasets for w in grid.widths)
+                          + tuple(size_variant(p) for p in grid.data_percents))
+
+
 def structure_variants(params: Mapping[str, Any]) -> tuple[str, tuple[str, ...]]:
     """The common_structure section's pairing and student variants (widths, ranking losses, then the
     single-task students)."""
@@ -267,6 +281,9 @@ def build_catalogue(params: Mapping[str, Any]) -> Catalogue:
     students += tuple(make_structure_student(variant, structure_pairing, seed, study.tasks,
                                              pairing_levels(structure_pairing, study), grid.teacher_seed)
                       for variant in variants for seed in grid.seeds)
+    shift_pairing, shift = shift_variants(params)
+    shift_students = tuple(make_student("mse", shift_pairing, seed, study.tasks, pairing_levels(shift_pairing, study),
+                                        grid.teacher_seed, variant) for variant in shift for seed in grid.seeds)
     sharing = sharing_grid(params, study)
     shared_teachers = tuple(t for level in sharing.levels for t in shared_teacher_runs(
         study.tasks, level, sharing.teachers, grid.teacher_seed, sharing.substitutes))
@@ -282,7 +299,7 @@ def build_catalogue(params: Mapping[str, Any]) -> Catalogue:
         multitask=tuple(MultitaskRun(level, seed, study.tasks) for level in multitask.levels
                         for seed in multitask.seeds),
         students=students, teacher_seed=grid.teacher_seed, teacher_actors=teacher.actors,
-        shared_teachers=shared_teachers)
+        shared_teachers=shared_teachers, shift_students=shift_students)
 
 
 def student_inputs(runs: list[StudentRun]) -> dict:

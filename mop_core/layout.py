@@ -41,6 +41,11 @@ def dataset_file(task: str, level: str) -> Path:
     return DATA / "datasets" / f"{task}-{level}.hdf5"
 
 
+def composed_file(task: str, level: str, name: str) -> Path:
+    """A composed dataset of task's ``level`` teacher's rollouts (thesis 5.2.4; mop_core.compose)."""
+    return DATA / "composed" / f"{task}-{level}-{name}.hdf5"
+
+
 def relabel_file(task: str, level: str) -> Path:
     return DATA / "relabelled" / f"{task}-{level}.hdf5"
 

@@ -20,8 +20,10 @@ or for the ranking regulariser: a lower bound for width 512 and for the regulari
 student (distill_single) its task's share of a multi-task student's update; a data-sharing
 teacher (train_shared_teachers) costs what a deterministic teacher does (its data is larger, its
 updates are not) and a data-sharing or substituted-set student (distill_sharing, distill_substitute)
-what a plain MSE student does. It is an
-estimate from rates measured in isolation, not a measurement of the stages.
+what a plain MSE student does; the state-shift students (distill_composed, distill_size) too, whatever
+their width (a lower bound for width 512), and compose rolls out its pools at the rollout rate, its
+task processes in waves of ``state_shift.workers`` (the state_shift stage's measures, seconds, are
+left out). It is an estimate from rates measured in isolation, not a measurement of the stages.
 """
 
 from __future__ import annotations
@@ -147,6 +149,24 @@ def stage_hours(params: Mapping[str, Any], rates: Rates) -> dict[str, tuple[int,
     out["distill_substitute"] = (entries * seeds, entries * per_entry / 3600)
     students += entries * seeds
 
+    shift = params.get("state_shift", {})
+    datasets, episodes = shift.get("datasets", []), shift.get("episodes", 0)
+    pools = {"teacher": 0, "noise": 0, "random": 0}  # mop_core.compose.ComposeConfig.pool_sizes
+    for name in datasets:
+        composition = shift["compositions"][name]
+        teacher = min(episodes, max(1, round(composition["teacher_share"] * episodes)))
+        pools["teacher"] = max(pools["teacher"], teacher)
+        if teacher < episodes:
+            rest = composition.get("rest", "noise")
+            pools[rest] = max(pools[rest], episodes - teacher)
+    composed = (sum(pools.values()) + shift.get("reference_episodes", 0)) * length if datasets else 0
+    waves = math.ceil(len(tasks) / max(shift.get("workers", 1), 1))
+    out["compose"] = (len(tasks) * len(datasets), waves * composed / rates.rollout / 3600)
+    entries = len(datasets) * len(shift.get("widths", []))  # the plain width's rate: wide ones cost more
+    out["distill_composed"] = (entries * seeds, entries * per_entry / 3600)
+    entries = len(shift.get("data_percents", []))
+    out["distill_size"] = (entries * seeds, entries * per_entry / 3600)
+
     policies = (2 * len(tasks)  # behaviour medium and expert
                 + shared_teachers
                 + len(tasks) * len(levels) * len(teachers["actors"]) * len(teachers["seeds"])
@@ -165,7 +185,8 @@ SCALED = [(("collect", "schedule"), "total_steps", 20), (("collect", "schedule")
           (("collect", "schedule"), "checkpoint_every", 10), (("collect", "schedule"), "eval_episodes", 1),
           (("collect", "schedule"), "snapshot_eval_episodes", 1), (("collect", "schedule"), "random_episodes", 1),
           (("collect", "datasets"), "expert_episodes", 2), (("collect", "datasets"), "medium_episodes", 2),
-          (("eval",), "episodes", 2), (("shared_computation",), "episodes", 1)] + [
+          (("eval",), "episodes", 2), (("shared_computation",), "episodes", 1),
+          (("state_shift",), "episodes", 2), (("state_shift",), "reference_episodes", 2)] + [
     ((section, "schedule"), key, floor) for section in ("train_teachers", "distill")
     for key, floor in (("steps", 10), ("eval_every", 5), ("checkpoint_every", 5), ("eval_episodes", 1),
                        ("final_eval_episodes", 1))]
@@ -195,6 +216,12 @@ def scaled_profile(params: Mapping[str, Any], fraction: float, max_evaluations: 
     transitions = min(transitions, collect["warmup_steps"] + collect["medium_step"])  # medium_replay
     for section in (out["train_teachers"]["pbrl"], out["distill"]):
         section["batch_size"] = min(section["batch_size"], transitions)
+    shift, length = out.get("state_shift", {}), out["study"]["episode_length"]
+    if shift.get("datasets"):  # a composed dataset's states
+        out["distill"]["batch_size"] = min(out["distill"]["batch_size"], shift["episodes"] * length)
+    for percent in shift.get("data_percents") or []:  # the fewest whole episodes of a dataset share
+        episodes = max(1, round(percent / 100 * out["collect"]["datasets"]["medium_episodes"]))
+        out["distill"]["batch_size"] = min(out["distill"]["batch_size"], episodes * length)
     ranking = out["distill"].get("ranking")
     if ranking:  # the regulariser compares states of the step's batch
         ranking["states"] = min(ranking["states"], out["distill"]["batch_size"])
@@ -217,6 +244,8 @@ def one_level_grid(params: Mapping[str, Any]) -> dict:
         out["common_structure"]["pairing"] = level
     if out.get("data_sharing", {}).get("levels"):
         out["data_sharing"]["levels"] = [level]
+    if "state_shift" in out:
+        out["state_shift"]["pairing"] = level
     return out
 
 

@@ -600,14 +600,15 @@ TRANSFER_NOTES = {
 
 
 def render_report(results: StudyResults, figure_dir: Path, link_prefix: str,
-                  later_sections: Sequence[str] = ()) -> str:
+                  later_sections: Sequence[str] = (), shift_sections: Sequence[str] = ()) -> str:
     """The report's Markdown; draws its own figures into ``figure_dir`` (linked as ``link_prefix`` +
-    file name). ``later_sections`` (Markdown, e.g. mop_core.report_structure's) follow section 7."""
+    file name). ``later_sections`` (Markdown, e.g. mop_core.report_structure's) follow section 7,
+    ``shift_sections`` (mop_core.report_shift's, thesis 5.2) the distillation losses (section 4)."""
     figure_dir.mkdir(parents=True, exist_ok=True)
     sections = [header(results), behaviour_section(results), teachers_section(results, figure_dir, link_prefix),
                 multitask_section(results, figure_dir, link_prefix), losses_section(results, figure_dir, link_prefix),
-                pairings_section(results), aggregate_section(results), shared_section(results), *later_sections,
-                cross_task_section(results)]
+                *shift_sections, pairings_section(results), aggregate_section(results), shared_section(results),
+                *later_sections, cross_task_section(results)]
     extra = results.figures.get("eval_returns")
     if extra:
         sections.append(f"## Appendix: every evaluated policy\n\n![returns]({extra})\n")

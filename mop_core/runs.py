@@ -23,12 +23,20 @@ group names are made here and nowhere else. Which runs a study has: mop_core.cat
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
 from mop_core.artifacts import RunPaths
-from mop_core.layout import behaviour_checkpoint, dataset_file, relabel_file, run_paths, tau_curves_dir
+from mop_core.layout import (
+    behaviour_checkpoint,
+    composed_file,
+    dataset_file,
+    relabel_file,
+    run_paths,
+    tau_curves_dir,
+)
 from mop_core.tasks import data_tasks, substitute_base, substitute_tasks
 
 BEHAVIOUR_LEVELS = ("medium", "expert")  # the collect stage's snapshots
@@ -71,6 +79,7 @@ def multitask_group(level: str) -> str:
 
 WIDTH_PREFIX, RANKING_PREFIX = "w", "rank_"  # common-structure variants (thesis 6.3): mop_core.distill.variants
 SINGLE_PREFIX = "single_"  # students of one task alone: the no-sharing reference of shared_computation
+COMPOSED_PREFIX, SIZE_PREFIX = "on_", "data"  # state-shift variants (thesis 5.2): composed data, dataset size
 
 
 def width_variant(width: int) -> str:
@@ -91,6 +100,29 @@ def single_variant(task: str) -> str:
 def single_task_of(variant: str) -> str | None:
     """The task of a single-task variant (``single_<task>``), None for any other variant."""
     return variant[len(SINGLE_PREFIX):] if variant.startswith(SINGLE_PREFIX) else None
+
+
+def composed_variant(dataset: str, width: int) -> str:
+    """The variant of students of hidden width ``width`` distilled on the composed dataset ``dataset``
+    (thesis 5.2.4: ``on_noise_w16``)."""
+    return f"{COMPOSED_PREFIX}{dataset}_{WIDTH_PREFIX}{width}"
+
+
+def composed_parts(variant: str) -> tuple[str, int] | None:
+    """(composed dataset, width) of a composed-data variant, None for any other variant."""
+    match = re.fullmatch(rf"{COMPOSED_PREFIX}(\w+?)_{WIDTH_PREFIX}([1-9][0-9]*)", variant)
+    return (match.group(1), int(match.group(2))) if match else None
+
+
+def size_variant(percent: int) -> str:
+    """The variant of students distilled on ``percent``% of each task's dataset (whole episodes)."""
+    return f"{SIZE_PREFIX}{percent}"
+
+
+def size_percent(variant: str) -> int | None:
+    """The dataset percentage of a size variant (``data10``), None for any other variant."""
+    match = re.fullmatch(rf"{SIZE_PREFIX}([1-9][0-9]?)", variant)
+    return int(match.group(1)) if match else None
 
 
 def student_recipe(loss: str, variant: str = "") -> str:
@@ -293,8 +325,17 @@ class StudentRun:
         return tuple(t.level for t in self.teachers)
 
     @property
+    def composed(self) -> str:
+        """The composed dataset it learns from (thesis 5.2.4; mop_core.compose), "" for the offline data."""
+        parts = composed_parts(self.variant)
+        return parts[0] if parts else ""
+
+    @property
     def datasets(self) -> tuple[Path, ...]:
-        """Each task's own offline dataset (its MOP teacher's; the per-state tau probes come from it)."""
+        """Each task's own offline dataset (its MOP teacher's; the per-state tau probes come from it); a
+        composed-data student's: the composed dataset of that teacher's rollouts."""
+        if self.composed:
+            return tuple(composed_file(task, level, self.composed) for task, level in zip(self.tasks, self.levels))
         return tuple(dataset_file(task, level) for task, level in zip(self.data_tasks, self.levels))
 
     @property

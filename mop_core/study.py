@@ -24,7 +24,7 @@ from mop_core.schedule import TrainSchedule
 from mop_core.tasks import check_task_list, get_task, substitute_base
 
 SECTIONS = ("study", "collect", "relabel", "train_teachers", "train_multitask", "distill", "common_structure",
-            "data_sharing", "eval", "shared_computation")
+            "data_sharing", "state_shift", "eval", "shared_computation")
 RANKING_LOSS_NAMES = ("pairwise", "listwise", "approx_ndcg")  # mop_core.ranking.RANKING_LOSSES (tested equal)
 
 
@@ -167,6 +167,64 @@ class SharingGrid:
                         f"its {needs[student]} teachers in teachers", student)
         require(not self.substitutes or "oqs" in self.teachers, "substitutes", "oqs in teachers (a substitute's "
                 "own teacher, on its base task's data, trains with the OQS teachers)", list(self.substitutes))
+
+
+@dataclass(frozen=True)
+class ShiftGrid:
+    """The state_shift section (thesis 5.2): per study task, datasets composed from the ``pairing``'s
+    MOP teacher's rollouts (``datasets``, each a ``compositions`` entry: the share of episodes the
+    teacher acts in, the rest noisy or random; mop_core.compose), MSE students of every ``widths`` on
+    each (5.2.4, Figure 5.8; the widest one the distill student's is 5.2.3's online-vs-offline
+    comparison on the online dataset) and on ``data_percents``% of each task's offline dataset; and
+    the shift between every dataset and the teacher's visited states (``measure``: mop_core.shift).
+    Empty lists train none. The data and measure settings are typed where they are used
+    (mop_core.compose.compose_config, mop_core.shift_study.measure_config)."""
+
+    pairing: str = ""
+    datasets: tuple[str, ...] = ()
+    compositions: dict[str, Any] = field(default_factory=dict)
+    episodes: int = 100
+    noise_std: float = 1.0
+    reference_episodes: int = 20
+    rollout_envs: int = 10
+    workers: int = 2
+    widths: tuple[int, ...] = ()
+    data_percents: tuple[int, ...] = ()
+    measure: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        require(all(isinstance(w, int) and not isinstance(w, bool) and w >= 1 for w in self.widths), "widths",
+                "a list of positive integers (hidden width of every student layer)", list(self.widths))
+        require_unique(self.widths, "widths")
+        require(all(isinstance(p, int) and not isinstance(p, bool) and 1 <= p <= 99 for p in self.data_percents),
+                "data_percents", "a list of whole percentages in [1, 99] (100 is plain MOP)", list(self.data_percents))
+        require_unique(self.data_percents, "data_percents")
+        require_unique(self.datasets, "datasets")
+        require(self.workers >= 1, "workers", "a positive integer", self.workers)
+        require(not (self.widths and not self.datasets), "widths", "[] when no datasets are composed",
+                list(self.widths))
+
+
+def shift_grid(params: Mapping[str, Any], study: StudyConfig) -> ShiftGrid:
+    """The state_shift section (absent: none), its pairing checked against the distill pairings (the
+    MOP students its students are compared with) and deterministic teachers (they compose the data)."""
+    if "state_shift" not in params:
+        return ShiftGrid()
+    grid = from_mapping(ShiftGrid, section(params, "state_shift"), "state_shift")
+    if not (grid.datasets or grid.data_percents):
+        return grid
+    levels = pairing_levels(grid.pairing, study, "state_shift.pairing")
+    pairings = [pairing_levels(str(p), study, "distill.pairings") for p in section(params, "distill").get(
+        "pairings") or []]
+    require(levels in pairings, "state_shift.pairing", f"one of distill.pairings "
+            f"{section(params, 'distill').get('pairings')} (the MOP students its students are compared with)",
+            grid.pairing)
+    actors = section(params, "train_teachers").get("actors", [])
+    require("deterministic" in actors, "state_shift", "deterministic teachers in train_teachers.actors (they "
+            "compose the datasets; the students are MSE students)", actors)
+    require(len(study.tasks) >= 2, "state_shift", "at least two study.tasks (multi-task students)",
+            list(study.tasks))
+    return grid
 
 
 # ---- sections -------------------------------------------------------------------------------------

@@ -11,14 +11,16 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-from mop_core.catalogue import LOSS_ACTORS, structure_variants
+from mop_core.catalogue import LOSS_ACTORS, shift_variants, structure_variants
 from mop_core.collect import CollectConfig, collect_configs
+from mop_core.compose import compose_config
 from mop_core.config import keys_under, require
 from mop_core.distill.distiller import distill_config
 from mop_core.distill.variants import variant_config
 from mop_core.evaluation import EvalConfig
 from mop_core.relabel import RelabelConfig
 from mop_core.shared_computation import shared_computation_config
+from mop_core.shift_study import measure_config
 from mop_core.study import (
     SECTIONS,
     StudyConfig,
@@ -28,6 +30,7 @@ from mop_core.study import (
     pairing_levels,
     section,
     sharing_grid,
+    shift_grid,
     study_config,
     teacher_grid,
     typed_section,
@@ -67,6 +70,30 @@ def check_batch_sizes(params: Mapping[str, Any], study: StudyConfig, collect: Co
                         f"at most the {states} states per task the {level} students learn from", config.batch_size)
 
 
+def check_shift(params: Mapping[str, Any], study: StudyConfig, collect: CollectConfig) -> None:
+    """The state_shift section: its grid, composed data and measure settings, its students' configs,
+    and the distill batch against the states they learn from (a composed dataset, a dataset share)."""
+    grid = shift_grid(params, study)
+    compose = compose_config(grid)
+    measure_config(grid)
+    config = distill_config(params, "mse")
+    with keys_under("distill"):
+        for variant in shift_variants(params)[1]:
+            variant_config(config, variant)
+    if grid.datasets:
+        states = compose.episodes * study.episode_length
+        require(config.batch_size <= states, "distill.batch_size", f"at most the {states} states of a composed "
+                "dataset (state_shift.episodes x study.episode_length)", config.batch_size)
+    for percent in grid.data_percents:
+        for level in set(pairing_levels(grid.pairing, study, "state_shift.pairing")):
+            transitions = dataset_transitions(collect, level)
+            if transitions is not None:
+                episodes = transitions // study.episode_length
+                states = max(1, round(percent / 100 * episodes)) * study.episode_length
+                require(config.batch_size <= states, "distill.batch_size", f"at most the {states} states of "
+                        f"{percent}% of the {level} dataset's episodes (state_shift.data_percents)", config.batch_size)
+
+
 def check_params(params: Mapping[str, Any], where: str = "params.yaml") -> None:
     """Build every section's typed config and check them against each other; raise ConfigError."""
     check_sections(params, where)
@@ -89,6 +116,7 @@ def check_params(params: Mapping[str, Any], where: str = "params.yaml") -> None:
             variant_config(distill_config(params, "mse"), variant)
     sharing_grid(params, study)
     check_batch_sizes(params, study, collect)
+    check_shift(params, study, collect)
     evaluation = typed_section(params, "eval", EvalConfig)
     for i, task in enumerate(evaluation.transfer_tasks):
         require(task not in study.tasks, f"eval.transfer_tasks[{i}]", "a task outside study.tasks (the study's "

@@ -22,6 +22,9 @@ teachers, states and seeds as the plain students, one setting changed; its files
 ``<loss>-<variant>-<pairing>`` where the plain ones use ``<loss>-<pairing>``. ``--variant single_<task>``
 (the distill_single entries) distils that task's teacher alone into a one-task student: the
 no-sharing reference the shared_computation stage measures the multi-task students against.
+``--variant on_<dataset>_w<width>`` (distill_composed, thesis 5.2.4) trains them on a composed dataset of
+the teachers' rollouts (the compose stage), every hidden layer ``width`` wide; ``--variant data<percent>``
+(distill_size) on that share of each task's dataset's whole episodes (the state_shift section).
 
 ``--variant ds | oqs_own | oqs_target`` with ``--pairing <level>`` (the distill_sharing entries, thesis
 6.4, the data_sharing section) trains MSE students on the union of the tasks' datasets of that level:
@@ -43,6 +46,7 @@ from mop_core.catalogue import (
     make_sharing_student,
     make_structure_student,
     make_student,
+    shift_variants,
     structure_variants,
 )
 from mop_core.config import ConfigError, keys_under, require
@@ -78,6 +82,7 @@ def main() -> None:
     study = study_config(params)
     grid, config = distill_grid(params, study, LOSS_ACTORS), distill_config(params, args.loss)
     structure_pairing, variants = structure_variants(params)
+    shift_pairing, shift = shift_variants(params)
     sharing = sharing_grid(params, study)
     require(not args.substitute or args.substitute in sharing.substitutes, "--substitute",
             f"one of data_sharing.substitutes {list(sharing.substitutes)}", args.substitute)
@@ -85,9 +90,11 @@ def main() -> None:
     sharing_variant = args.variant in students and args.pairing in sharing.levels
     require(not args.substitute or sharing_variant, "--variant", f"one of data_sharing.substitute_students "
             f"{list(students)} with a --pairing of data_sharing.levels {list(sharing.levels)}", args.variant)
-    require(not args.variant or (args.variant in variants and args.pairing == structure_pairing) or sharing_variant,
-            "--variant", f"one of the common_structure variants {list(variants)} with --pairing {structure_pairing}, "
-            f"or of data_sharing.students {list(sharing.students)} with a --pairing of data_sharing.levels "
+    shift_variant = args.variant in shift and args.pairing == shift_pairing
+    require(not args.variant or (args.variant in variants and args.pairing == structure_pairing) or sharing_variant
+            or shift_variant, "--variant", f"one of the common_structure variants {list(variants)} with --pairing "
+            f"{structure_pairing}, of the state_shift variants {list(shift)} with --pairing {shift_pairing}, or of "
+            f"data_sharing.students {list(sharing.students)} with a --pairing of data_sharing.levels "
             f"{list(sharing.levels)}", args.variant)
     require(not sharing_variant or args.loss == "mse", "--loss", "mse for the data-sharing students", args.loss)
     config = variant_config(config, args.variant)
@@ -100,6 +107,10 @@ def main() -> None:
     if sharing_variant:
         runs = [make_sharing_student(args.variant, args.pairing, seed, study.tasks, grid.teacher_seed,
                                      args.substitute) for seed in seeds]
+    elif shift_variant:
+        require(args.loss == "mse", "--loss", "mse for the state_shift students", args.loss)
+        runs = [make_student("mse", args.pairing, seed, study.tasks, levels, grid.teacher_seed, args.variant)
+                for seed in seeds]
     elif args.variant:
         require(args.loss == "mse", "--loss", "mse for the common_structure students", args.loss)
         runs = [make_structure_student(args.variant, args.pairing, seed, study.tasks, levels, grid.teacher_seed)
@@ -110,7 +121,7 @@ def main() -> None:
     batch = runs[0].batch
     device = resolve_device(study.device, "study.device")
     require_inputs([t.paths.checkpoint for t in runs[0].all_teachers], "train_teachers")
-    require_inputs(runs[0].datasets, "collect")
+    require_inputs(runs[0].datasets, "compose" if runs[0].composed else "collect")
     require_inputs([student_inputs_file(batch)], "student_inputs")
     check_student_files(runs, study.seed, lambda actor: teacher_config(params, study, actor),
                         student_inputs_file(batch))

@@ -16,8 +16,9 @@ from mop_core.catalogue import build_catalogue
 from mop_core.data import atomic_path, write_json
 from mop_core.headline import headline_metrics
 from mop_core.layout import HEADLINE_METRICS, RESULTS
-from mop_core.report import load_results, render_report
+from mop_core.report import load_results, read_optional, render_report
 from mop_core.report_sharing import sharing_section
+from mop_core.report_shift import shift_section
 from mop_core.report_structure import structure_section
 
 REPORT = RESULTS / "report.md"
@@ -29,7 +30,9 @@ def main() -> None:
     results = load_results(build_catalogue(params), params)
     prefix = FIGURES.relative_to(RESULTS).as_posix() + "/"
     later = [structure_section(results, FIGURES, prefix), sharing_section(results, FIGURES, prefix)]
-    markdown = render_report(results, FIGURES, prefix, later)
+    shift = shift_section(read_optional(RESULTS / "state_shift" / "metrics.json"),
+                          read_optional(RESULTS / "compose" / "metrics.json"), results.tasks, "state_shift/figures/")
+    markdown = render_report(results, FIGURES, prefix, later, [shift])
     with atomic_path(REPORT) as tmp:
         tmp.write_text(markdown)
     write_json(HEADLINE_METRICS, headline_metrics(results.evaluation, results.shared, results.tasks))

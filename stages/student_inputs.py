@@ -20,14 +20,15 @@ from mop_core.layout import student_inputs_file
 
 def main() -> None:
     catalogue = build_catalogue(load_params())
-    require_inputs(sorted({t.paths.checkpoint for run in catalogue.students for t in run.teachers}),
-                   "train_teachers")
-    require_inputs(sorted({d for run in catalogue.students for d in run.datasets}), "collect")
+    students = catalogue.students + catalogue.shift_students
+    require_inputs(sorted({t.paths.checkpoint for run in students for t in run.teachers}), "train_teachers")
+    require_inputs(sorted({d for run in students if not run.composed for d in run.datasets}), "collect")
+    require_inputs(sorted({d for run in students if run.composed for d in run.datasets}), "compose")
     batches = catalogue.student_batches()
     for batch, runs in batches.items():
         write_json(student_inputs_file(batch), student_inputs(runs))
     print(f"student_inputs: recorded the teachers and datasets of {len(catalogue.students)} students "
-          f"in {len(batches)} distill entries")
+          f"and {len(catalogue.shift_students)} state-shift students in {len(batches)} distill entries")
 
 
 if __name__ == "__main__":

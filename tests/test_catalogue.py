@@ -320,11 +320,20 @@ def test_transfer_tasks_add_cross_task_jobs_only(tiny_params):
 def test_no_cross_task_jobs_without_deterministic_teachers(tiny_params):
     params = _with(tiny_params, train_teachers={"actors": ["gaussian"]}, distill={"losses": ["kl"]},
                    common_structure={"widths": [], "ranking_losses": [], "single_task": []},
-                   data_sharing={"levels": []})
+                   data_sharing={"levels": []}, state_shift={"datasets": [], "widths": [], "data_percents": []})
     catalogue = build_catalogue(params)
     assert catalogue.cross_task_teachers() == []
     assert not [j for j in catalogue.eval_jobs() if is_cross_group(j.group)]
     assert catalogue.student_comparisons() == []  # one loss: nothing to compare
+
+
+def test_state_shift_needs_deterministic_teachers_and_a_distill_pairing(tiny_params):
+    with pytest.raises(ConfigError, match="state_shift: expected deterministic teachers"):
+        build_catalogue(_with(tiny_params, train_teachers={"actors": ["gaussian"]}, distill={"losses": ["kl"]},
+                              common_structure={"widths": [], "ranking_losses": [], "single_task": []},
+                              data_sharing={"levels": []}))
+    with pytest.raises(ConfigError, match=r"state_shift.pairing: expected one of distill.pairings \['medium'\]"):
+        build_catalogue(_with(tiny_params, study={"levels": ["medium", "expert"]}, state_shift={"pairing": "expert"}))
 
 
 def test_common_structure_variants_need_deterministic_teachers_and_a_distill_pairing(tiny_params):

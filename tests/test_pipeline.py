@@ -118,6 +118,36 @@ def test_repro_trains_single_task_students_as_the_no_sharing_reference(repo):
                                                                       "mse-single_walk-medium-0"]
 
 
+def test_repro_composes_datasets_measures_their_shift_and_trains_students_on_them(repo):
+    from mop_core.data import read_dataset
+
+    for task in ("stand", "walk"):
+        online = read_dataset(repo / "data" / "composed" / f"{task}-medium-online.hdf5")
+        random99 = read_dataset(repo / "data" / "composed" / f"{task}-medium-random99.hdf5")
+        assert len(online) == len(random99) == 2 * 50 and online.attrs["teacher_episodes"] == 2
+        assert random99.attrs["teacher_episodes"] == 1 and random99.attrs["rest"] == "random"
+        # the teacher's episode is the online dataset's first one (shared pools); the rest is random
+        assert (random99.arrays["observations"][:50] == online.arrays["observations"][:50]).all()
+        assert not (random99.arrays["actions"][50:] == online.arrays["actions"][50:]).all()
+        assert (repo / "data" / "composed" / f"{task}-medium-reference.hdf5").is_file()
+    metrics = json.loads((repo / "results" / "state_shift" / "metrics.json").read_text())
+    for task in ("stand", "walk"):
+        assert set(metrics["shift"][task]) == {"reference", "expert", "medium", "medium_replay", "online", "random99"}
+        assert 0 <= metrics["shift"][task]["random99"]["auc"] <= 1
+    assert set(metrics["students"]) == {"offline_w16", "offline_w8", "on_online_w8", "on_random99_w8", "data50"}
+    assert metrics["students"]["data50"]["stand"]["return"]["n"] == 1  # the tiny profile's one seed
+    students = repo / "data" / "students"
+    checkpoint = torch.load(students / "mse-on_random99_w8-medium" / "mse-on_random99_w8-medium-0.pt",
+                            weights_only=False)
+    assert checkpoint["distill_config"]["student"]["hidden_sizes"] == [8, 8]
+    assert checkpoint["states"][0]["dataset"].endswith("composed/stand-medium-random99.hdf5")
+    sizes = torch.load(students / "mse-data50-medium" / "mse-data50-medium-0.pt", weights_only=False)
+    assert sizes["states"][0]["data_fraction"] == 0.5 and sizes["states"][0]["states"] == 100  # 2 of 3 episodes
+    report = (repo / "results" / "report.md").read_text()
+    assert "## 5b. State distribution shift (thesis 5.2)" in report and "| stand | random99 |" in report
+    assert "### Dataset size" in report and "| 50% |" in report
+
+
 def test_repro_produces_datasets_teachers_and_metrics(repo):
     for task in ("stand", "walk"):
         for level in ("expert", "medium", "medium_replay"):
@@ -205,6 +235,9 @@ EXP_SHOW = (r"dvc exp show --drop '.*' --keep "
 RUN_CACHE_PUSH = "dvc push --run-cache"
 EXP_PUSH = "dvc exp push origin"
 RUN_CACHE_REPRODUCE = "dvc exp run --pull -S distill.learning_rate=0.003 -S distill.lr_schedule=cosine"
+# the queued experiment's smaller grid (no state-shift or single-task students: the suite's time)
+SMALLER_GRID = ("-S", "state_shift.datasets=[]", "-S", "state_shift.widths=[]", "-S", "state_shift.data_percents=[]",
+                "-S", "common_structure.single_task=[]")
 
 
 def _command(line: str, *extra: str) -> list[str]:
@@ -221,7 +254,7 @@ def test_the_readme_shows_the_tested_commands():
 def test_metrics_show_holds_the_headline_numbers_and_the_timings_apart(repo):
     shown = json.loads(_run(["dvc", "metrics", "show", "--json"], repo).stdout)[""]["data"]
     assert all(path == "results/metrics.json" or path.startswith("results/timings/") for path in shown), shown
-    assert len([path for path in shown if path.startswith("results/timings/")]) == 21  # one per stage entry
+    assert len([path for path in shown if path.startswith("results/timings/")]) == 26  # one per stage entry
     headline = shown["results/metrics.json"]["data"]
     assert headline == json.loads((repo / "results" / "metrics.json").read_text())
     evaluation = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
@@ -239,7 +272,7 @@ def test_metrics_show_holds_the_headline_numbers_and_the_timings_apart(repo):
     rows = [line for line in table.splitlines() if line.strip()]
     assert "normalised_return.student_mse_medium.stand" in table and len(rows) == 3  # header, rule, one row
     timings = _run(_command(TIMINGS_SHOW, "--md"), repo).stdout
-    assert timings.count("results/timings/") == 21 and "normalised_return" not in timings
+    assert timings.count("results/timings/") == 26 and "normalised_return" not in timings
 
 
 def test_every_plot_renders_and_only_the_current_runs_are_drawn(repo):
@@ -289,11 +322,12 @@ def test_a_forced_teacher_rerun_leaves_every_later_stage_up_to_date(repo):
 def _check_report(repo: Path) -> None:
     """The report has every thesis section, and every figure it links is a PNG file."""
     report = (repo / "results" / "report.md").read_text()
-    for title in ("Table 4.1", "Figure 5.1", "Figure 5.3", "Figure 5.4", "Appendix E", "IQM", "Table 6.1",
-                  "Figure 6.3", "Figure 6.4", "Figure 6.5", "Figure 6.9", "Table 6.2", "Table 6.3",
+    for title in ("Table 4.1", "Figure 5.1", "Figure 5.3", "Figure 5.4", "Figure 5.8", "Appendix E", "IQM",
+                  "Table 6.1", "Figure 6.3", "Figure 6.4", "Figure 6.5", "Figure 6.9", "Table 6.2", "Table 6.3",
                   "Gradient conflict"):
         assert title in report
-    assert report.index("Table 4.1") < report.index("Figure 5.1") < report.index("Table 6.1") < report.index(
+    assert report.index("Table 4.1") < report.index("Figure 5.1") < report.index("Figure 5.8") < report.index(
+        "Appendix E") < report.index("Table 6.1") < report.index(
         "Figure 6.5") < report.index("Table 6.3")
     assert "| 8 | mse-w8 | 1 |" in report and "| pairwise | mse-rank_pairwise | 1 |" in report
     assert "| medium | stand | DS teacher |" in report
@@ -346,7 +380,7 @@ def test_each_parameter_section_invalidates_only_its_stages(repo):
     assert _invalidated_by(repo, "shared_computation", "episodes", 2) == {"shared_computation"}
     # dropping the width sweep leaves the ranking students (their entry's item and params are unchanged)
     assert _invalidated_by(repo, "common_structure", "widths", []) == {
-        "student_inputs", "eval", "shared_computation", "report"}
+        "student_inputs", "eval", "shared_computation", "state_shift", "report"}
     # dropping the OQS students leaves the DS ones and every teacher
     assert _invalidated_by(repo, "data_sharing", "students", ["ds"]) == {
         "student_inputs", "eval", "shared_computation", "report"}
@@ -382,7 +416,8 @@ def test_exp_run_of_distill_param_reruns_only_distill_and_what_reads_students(re
                                 "distill_single@walk", "distill_sharing@medium-ds",
                                 "distill_sharing@medium-oqs_own", "distill_sharing@medium-oqs_target",
                                 "distill_substitute@stand_still-medium-mop",
-                                "distill_substitute@stand_still-medium-oqs_own", "eval",
+                                "distill_substitute@stand_still-medium-oqs_own", "distill_composed@online-8",
+                                "distill_composed@random99-8", "distill_size@50", "state_shift", "eval",
                                 "shared_computation", "report"}
     metrics = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
     assert "student_mse_medium" in metrics["stand"]
@@ -413,8 +448,8 @@ def test_queued_sweep_and_the_run_cache_shared_through_a_remote(repo, tmp_path):
     _run(["git", "remote", "add", "origin", str(tmp_path / "shared.git")], repo)
     _run(["git", "push", "-q", "origin", "HEAD"], repo)
     # the tiny profile is a complete params file: -S can set any key (lr_schedule is constant there)
-    _run(["dvc", "exp", "run", "--queue", "-S", "distill.learning_rate=0.003", "-S", "distill.lr_schedule=cosine"],
-         repo)
+    _run(["dvc", "exp", "run", "--queue", "-S", "distill.learning_rate=0.003", "-S", "distill.lr_schedule=cosine",
+          *SMALLER_GRID], repo)
     _run(["dvc", "exp", "run", "--run-all", "-j", "1"], repo)
     status = _run(["dvc", "queue", "status"], repo).stdout
     assert status.count("Success") == 1 and "Failed" not in status
@@ -431,7 +466,7 @@ def test_queued_sweep_and_the_run_cache_shared_through_a_remote(repo, tmp_path):
     _run(_command(EXP_PUSH), repo)
     clone = tmp_path / "clone"
     _run(["git", "clone", "-q", str(tmp_path / "shared.git"), str(clone)], tmp_path)
-    out = _run(_command(RUN_CACHE_REPRODUCE), clone).stdout
+    out = _run(_command(RUN_CACHE_REPRODUCE, *SMALLER_GRID), clone).stdout
     assert not _stages_run(out), out
     assert out.count("is cached - skipping run") >= 5  # params, the 3 students, eval, ...
     assert json.loads((clone / "results" / "metrics.json").read_text()) == machine_a

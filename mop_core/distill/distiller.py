@@ -89,6 +89,8 @@ class DistillConfig:
     q_reduction: str = "min"  # Q loss: reduce the teacher's critic ensemble by min or mean
     state_source: str = "offline"  # offline: the task's dataset; online: states the teacher visits
     num_states: int = 0  # states per task; 0 = the whole offline dataset (online: must be > 0)
+    data_fraction: float = 1.0  # offline: the share of each dataset's whole episodes kept (drawn per student
+    #                             seed; the dataset-size experiment), before num_states draws from them
     probe_states: int = 256  # states per task for the per-state tau curve (thesis 6.3.1, Fig. 6.4b); 0 = off
     probe_source: str = "offline"  # offline: fixed dataset states, the same for every student; visited: states
     #                                the student visits in each evaluation (the reference code's choice)
@@ -109,6 +111,10 @@ class DistillConfig:
                 self.num_states)
         require(self.state_source == "offline" or self.num_states > 0, "num_states",
                 "a positive number of states for state_source online", self.num_states)
+        require(0 < self.data_fraction <= 1, "data_fraction", "a share of the dataset's episodes in (0, 1]",
+                self.data_fraction)
+        require(self.data_fraction == 1 or self.state_source == "offline", "data_fraction",
+                "1 unless state_source is offline", self.data_fraction)
         hidden = len(self.student.hidden_sizes)
         require(len(self.ranking.layer_weights) in (0, hidden), "ranking.layer_weights",
                 f"one weight per hidden layer of the student ({hidden}) or [] (1 each)",

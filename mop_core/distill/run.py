@@ -115,6 +115,8 @@ def build_states(sources: StudentSources, teachers: Sequence[Teacher], config: D
     if sources.state_datasets:  # data sharing: one union, the same states for every task
         require(config.state_source == "offline", "state_source", "offline for data-sharing students (they learn "
                 "on the union of the offline datasets)", config.state_source)
+        require(config.data_fraction == 1, "data_fraction", "1 for data-sharing students (they learn on the whole "
+                "union)", config.data_fraction)
         shared = union_states(sources.state_datasets, config.num_states,
                               np.random.default_rng(derive_seeds([seed, "union"], ("subset",))["subset"]))
     for i, (task, teacher, dataset) in enumerate(zip(sources.tasks, teachers, sources.datasets)):
@@ -124,8 +126,11 @@ def build_states(sources: StudentSources, teachers: Sequence[Teacher], config: D
             source = {"source": "offline_union", "datasets": [str(d) for d in sources.state_datasets],
                       "states": len(states)}
         elif config.state_source == "offline":
-            states = offline_states(dataset, config.num_states, np.random.default_rng(task_seeds["subset"]))
+            states = offline_states(dataset, config.num_states, np.random.default_rng(task_seeds["subset"]),
+                                    config.data_fraction)
             source = {"source": "offline", "dataset": str(dataset), "states": len(states)}
+            if config.data_fraction < 1:
+                source["data_fraction"] = config.data_fraction
         else:
             episodes = -(-config.num_states // episode_length)
             seeds = [task_seeds["episodes"] + j for j in range(episodes)]
@@ -147,7 +152,7 @@ def group_states(sources: StudentSources, teachers: Sequence[Teacher], config: D
     """Each run's distillation states (:func:`build_states` with the run's seed); the whole offline
     dataset is the same for every seed: built once and shared."""
     first = build_states(sources, teachers, config, episode_length, seeds[0], rollout_envs, device, candidates)
-    if config.state_source == "offline" and config.num_states == 0:
+    if config.state_source == "offline" and config.num_states == 0 and config.data_fraction == 1:
         return [first] * len(seeds)
     return [first] + [build_states(sources, teachers, config, episode_length, seed, rollout_envs, device, candidates)
                       for seed in seeds[1:]]

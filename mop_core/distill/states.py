@@ -41,9 +41,24 @@ class TaskStates:
         return len(self.states)
 
 
-def offline_states(dataset: str | Path, num_states: int, rng: np.random.Generator) -> np.ndarray:
-    """``num_states`` observations of the dataset drawn without replacement (0 or more than N: all)."""
-    observations = read_dataset(dataset).arrays["observations"]
+def episode_rows(ends: np.ndarray, fraction: float, rng: np.random.Generator) -> np.ndarray:
+    """The rows of ``round(fraction * episodes)`` (at least one) whole episodes, drawn without
+    replacement and kept in dataset order; ``ends[t]`` marks an episode's last row."""
+    bounds = np.flatnonzero(ends) + 1
+    starts = np.concatenate([[0], bounds[:-1]])
+    count = min(len(starts), max(1, int(round(fraction * len(starts)))))
+    chosen = np.sort(rng.choice(len(starts), size=count, replace=False))
+    return np.concatenate([np.arange(starts[e], bounds[e]) for e in chosen])
+
+
+def offline_states(dataset: str | Path, num_states: int, rng: np.random.Generator, fraction: float = 1.0
+                   ) -> np.ndarray:
+    """``num_states`` observations of the dataset drawn without replacement (0 or more than N: all);
+    ``fraction`` < 1: drawn from that share of its whole episodes (:func:`episode_rows`) only."""
+    arrays = read_dataset(dataset).arrays
+    observations = arrays["observations"]
+    if fraction < 1:
+        observations = observations[episode_rows(arrays["timeouts"] | arrays["terminals"], fraction, rng)]
     if 0 < num_states < len(observations):
         index = np.sort(rng.choice(len(observations), size=num_states, replace=False))
         observations = observations[index]

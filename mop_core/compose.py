@@ -1,0 +1,205 @@
+"""Composed datasets (thesis 5.2.4): offline datasets built from a teacher's own rollouts, with a
+chosen share of episodes in which it acts perturbed, to give the student's data a known, graded
+state distribution shift from the states the teacher visits.
+
+Per task i and its teacher pi_i^T, a composition names the share of whole episodes the teacher
+acts in (``teacher_share``) and how the rest act (``rest``):
+
+- ``noise``: ``clip(pi_i^T(s) + N(0, sigma^2 I), -1, 1)`` (the thesis's Noise data, sigma = 1; DART's
+  supervisor noise, Laskey et al. 2017);
+- ``random``: ``U(-1, 1)^6``, the teacher not involved (Random90: 10% teacher, Random99: 1%).
+
+The thesis's four: online (100% teacher: no shift), noise (10% / 90% noisy), random90 (10% / 90%
+random), random99 (1% / 99% random). Every dataset has ``episodes`` episodes; a composition's teacher
+episodes are ``round(teacher_share * episodes)``, at least one.
+
+The episodes come from three pools per task, each rolled out once with its own seeds: the teacher's,
+the noisy teacher's and the random policy's. A dataset takes the first episodes of each pool it
+needs, so random90's random episodes are random99's first 90 and every dataset's teacher episodes are
+the online dataset's first ones (common random numbers: the datasets differ only by composition).
+A separate set of ``reference_episodes`` teacher episodes on other seeds is the teacher's state
+distribution against which the state_shift stage measures each dataset (held out: the online
+dataset is compared with teacher states it does not contain).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from mop_core.config import from_mapping, keys_under, require
+from mop_core.data import write_dataset
+from mop_core.rollout import Policy, collect_episodes
+from mop_core.runtime import derive_seeds
+
+REST_POLICIES = ("noise", "random")
+REFERENCE = "reference"  # the held-out teacher episodes' file (not a composition name)
+
+
+@dataclass(frozen=True)
+class Composition:
+    """One composed dataset: the share of its episodes the teacher acts in, how the others act."""
+
+    teacher_share: float
+    rest: str = "noise"  # noise | random
+
+    def __post_init__(self) -> None:
+        require(0 < self.teacher_share <= 1, "teacher_share", "a share in (0, 1]", self.teacher_share)
+        require(self.rest in REST_POLICIES, "rest", f"one of {', '.join(REST_POLICIES)}", self.rest)
+
+    def teacher_episodes(self, episodes: int) -> int:
+        """Whole teacher episodes of a dataset of ``episodes``: the share rounded, at least one."""
+        return min(episodes, max(1, int(round(self.teacher_share * episodes))))
+
+
+THESIS_COMPOSITIONS = {"online": Composition(1.0), "noise": Composition(0.1, "noise"),
+                       "random90": Composition(0.1, "random"), "random99": Composition(0.01, "random")}
+
+
+@dataclass(frozen=True)
+class ComposeConfig:
+    """The composed datasets of a study (the ``state_shift`` section's data part)."""
+
+    datasets: tuple[str, ...] = tuple(THESIS_COMPOSITIONS)
+    compositions: Mapping[str, Composition] = field(default_factory=lambda: dict(THESIS_COMPOSITIONS))
+    episodes: int = 100  # per composed dataset
+    noise_std: float = 1.0  # sigma of the noisy teacher's Gaussian action noise
+    reference_episodes: int = 20  # held-out teacher episodes: the teacher's state distribution
+    rollout_envs: int = 10
+
+    def __post_init__(self) -> None:
+        compositions = {}
+        for name, value in dict(self.compositions).items():
+            with keys_under(f"compositions.{name}"):
+                compositions[name] = (value if isinstance(value, Composition)
+                                      else from_mapping(Composition, value, f"compositions.{name}")
+                                      if isinstance(value, Mapping) else value)
+            require(isinstance(compositions[name], Composition), f"compositions.{name}",
+                    "a mapping {teacher_share: <share>, rest: noise | random}", value)
+        object.__setattr__(self, "compositions", compositions)
+        for i, name in enumerate(self.datasets):
+            require(name in compositions, f"datasets[{i}]", f"one of compositions {sorted(compositions)}", name)
+            require(name != REFERENCE and "-" not in name and name.isidentifier(), f"datasets[{i}]",
+                    f"a name of letters, digits and '_' other than {REFERENCE!r}", name)
+        require(len(set(self.datasets)) == len(self.datasets), "datasets", "a list without repeats",
+                list(self.datasets))
+        require(self.episodes >= 1, "episodes", "a positive integer", self.episodes)
+        require(self.noise_std >= 0, "noise_std", "a non-negative number", self.noise_std)
+        require(self.reference_episodes >= 2, "reference_episodes", "at least 2 (the shift's split-half null "
+                "compares two halves)", self.reference_episodes)
+        require(self.rollout_envs >= 1, "rollout_envs", "a positive integer", self.rollout_envs)
+
+    def pool_sizes(self) -> dict[str, int]:
+        """Episodes rolled out per pool (teacher, noise, random): what the datasets need, at most."""
+        sizes = {"teacher": 0, "noise": 0, "random": 0}
+        for name in self.datasets:
+            composition = self.compositions[name]
+            teacher = composition.teacher_episodes(self.episodes)
+            sizes["teacher"] = max(sizes["teacher"], teacher)
+            if teacher < self.episodes:
+                sizes[composition.rest] = max(sizes[composition.rest], self.episodes - teacher)
+        return sizes
+
+
+def random_policy(rng: np.random.Generator) -> Policy:
+    """Uniformly random torques in [-1, 1] for every walker of a batch."""
+    return lambda obs: rng.uniform(-1.0, 1.0, size=(len(obs), 6))
+
+
+def _episode_slice(arrays: Mapping[str, np.ndarray], count: int, episode_length: int) -> dict[str, np.ndarray]:
+    return {key: value[:count * episode_length] for key, value in arrays.items()}
+
+
+def concatenate(parts: Sequence[Mapping[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    parts = [p for p in parts if len(p["rewards"])]
+    return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+
+
+def pool_seeds(seed: int, task: str, level: str, pool: str, count: int) -> list[int]:
+    """Episode seeds of one pool (teacher, noise, random, reference) of a task's composed data."""
+    base = derive_seeds([seed, "compose", task, level, pool], ("episodes",))["episodes"] % (2 ** 31 - 100_000)
+    return [base + j for j in range(count)]
+
+
+def compose_task(teacher: Policy, task: str, level: str, config: ComposeConfig, seed: int, episode_length: int,
+                 write: Callable[[str, dict[str, np.ndarray], dict[str, Any]], None]) -> dict[str, dict]:
+    """Roll out the pools of one task and write each composed dataset and the reference episodes
+    through ``write(name, arrays, attrs)``. Returns per dataset its composition and episode counts."""
+    sizes = config.pool_sizes()
+    pools: dict[str, dict[str, np.ndarray]] = {}
+    rng = {name: np.random.default_rng(derive_seeds([seed, "compose", task, level, name], ("actions",))["actions"])
+           for name in ("noise", "random")}
+    if sizes["teacher"]:
+        pools["teacher"] = collect_episodes(teacher, task, pool_seeds(seed, task, level, "teacher", sizes["teacher"]),
+                                            episode_length, config.rollout_envs)
+    if sizes["noise"]:
+        pools["noise"] = collect_episodes(teacher, task, pool_seeds(seed, task, level, "noise", sizes["noise"]),
+                                          episode_length, config.rollout_envs, config.noise_std, rng["noise"])
+    if sizes["random"]:
+        pools["random"] = collect_episodes(random_policy(rng["random"]), task,
+                                           pool_seeds(seed, task, level, "random", sizes["random"]),
+                                           episode_length, config.rollout_envs)
+    reference = collect_episodes(teacher, task, pool_seeds(seed, task, level, REFERENCE, config.reference_episodes),
+                                 episode_length, config.rollout_envs)
+    summary = {}
+    for name in config.datasets:
+        composition = config.compositions[name]
+        teacher_count = composition.teacher_episodes(config.episodes)
+        rest_count = config.episodes - teacher_count
+        parts = [_episode_slice(pools["teacher"], teacher_count, episode_length)]
+        if rest_count:
+            parts.append(_episode_slice(pools[composition.rest], rest_count, episode_length))
+        arrays = concatenate(parts)
+        attrs = {"composition": name, "teacher_episodes": teacher_count, "rest": composition.rest,
+                 "rest_episodes": rest_count, "noise_std": config.noise_std}
+        write(name, arrays, attrs)
+        returns = arrays["rewards"].reshape(-1, episode_length).sum(1)
+        summary[name] = {"teacher_episodes": teacher_count, "rest": composition.rest if rest_count else None,
+                         "rest_episodes": rest_count, "transitions": len(arrays["rewards"]),
+                         "return_mean": float(returns.mean()), "return_std": float(returns.std())}
+    write(REFERENCE, reference, {"composition": REFERENCE, "teacher_episodes": config.reference_episodes,
+                                 "rest": "none", "rest_episodes": 0, "noise_std": 0.0})
+    ref_returns = reference["rewards"].reshape(-1, episode_length).sum(1)
+    summary[REFERENCE] = {"teacher_episodes": config.reference_episodes, "transitions": len(reference["rewards"]),
+                          "return_mean": float(ref_returns.mean()), "return_std": float(ref_returns.std())}
+    return summary
+
+
+def dataset_writer(path_of: Callable[[str], Path], base_attrs: Mapping[str, Any]
+                   ) -> Callable[[str, dict[str, np.ndarray], dict[str, Any]], None]:
+    """A ``write`` for :func:`compose_task`: each dataset to ``path_of(name)`` (atomic, the dataset
+    schema of mop_core.data) with ``base_attrs`` (task, level, seed, episode_length, behaviour_sha256)."""
+    def write(name: str, arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> None:
+        write_dataset(path_of(name), arrays, dict(base_attrs) | attrs)
+    return write
+
+
+def compose_config(grid) -> ComposeConfig:
+    """The composed-data settings of a :class:`mop_core.study.ShiftGrid` (errors name ``state_shift.<key>``);
+    no ``compositions`` in the params: the thesis's four."""
+    with keys_under("state_shift"):
+        return ComposeConfig(datasets=tuple(grid.datasets), compositions=dict(grid.compositions or THESIS_COMPOSITIONS),
+                             episodes=grid.episodes, noise_std=grid.noise_std,
+                             reference_episodes=grid.reference_episodes, rollout_envs=grid.rollout_envs)
+
+
+def compose_teacher_data(teacher_path: Path, task: str, level: str, config: ComposeConfig, seed: int,
+                         episode_length: int, path_of: Callable[[str], Path]) -> dict:
+    """The compose step of one task (a :func:`mop_core.runtime.parallel_map` job): load the frozen
+    deterministic teacher of ``teacher_path`` and write its composed datasets and reference episodes
+    to ``path_of(name)``. Returns :func:`compose_task`'s summary with the seconds it took."""
+    from mop_core.teachers import load_teacher  # the teachers' training code only where it is needed
+
+    started = time.perf_counter()
+    teacher = load_teacher(teacher_path)
+    if teacher.task != task or teacher.config.actor != "deterministic":
+        raise ValueError(f"{teacher_path}: composing {task}'s data needs its deterministic teacher, got a "
+                         f"{teacher.config.actor} one for {teacher.task!r}")
+    attrs = {"task": task, "level": level, "seed": seed, "episode_length": episode_length,
+             "behaviour_sha256": teacher.actor_sha256}
+    summary = compose_task(teacher.act, task, level, config, seed, episode_length, dataset_writer(path_of, attrs))
+    return {"datasets": summary, "teacher": str(teacher_path), "seconds": round(time.perf_counter() - started, 1)}

@@ -1,0 +1,134 @@
+"""mop_core/shift_study.py and mop_core/report_shift.py: the state_shift stage's measures and tables,
+and the state-shift students' names, configs and place in the catalogue (mop_core/runs.py,
+mop_core/distill/variants.py, mop_core/catalogue.py)."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from mop_core.catalogue import build_catalogue
+from mop_core.distill.distiller import distill_config
+from mop_core.distill.variants import variant_config
+from mop_core.layout import composed_file, dataset_file
+from mop_core.report_shift import shift_section
+from mop_core.runs import composed_parts, composed_variant, size_percent, size_variant
+from mop_core.shift_study import MeasureConfig, effective_share, measure_shift, student_table
+
+CONFIG = MeasureConfig(states=1000, k=3, bootstrap=4, classifier_epochs=5, threads=1)
+
+
+@pytest.fixture(scope="module")
+def measured():
+    rng = np.random.default_rng(0)
+    teacher = rng.normal(size=(2000, 4))
+    sets = {"same": rng.normal(size=(2000, 4)), "near": rng.normal(0.3, 1.0, size=(2000, 4)),
+            "far": rng.normal(1.5, 1.0, size=(2000, 4))}
+    return measure_shift(sets, teacher, CONFIG, seed=0)
+
+
+def test_a_set_from_the_teachers_distribution_measures_as_its_null(measured):
+    ref = measured["reference"]
+    assert ref["kl_null_low"] <= ref["kl_null"] <= ref["kl_null_high"]
+    same = measured["same"]
+    assert abs(same["kl"] - ref["kl_null"]) < 0.1 and 0.4 < same["auc"] < 0.6 and same["ess"] > 0.8
+
+
+def test_more_shift_ranks_higher_on_every_measure(measured):
+    same, near, far = measured["same"], measured["near"], measured["far"]
+    assert same["kl"] < near["kl"] < far["kl"] and far["kl_low"] > near["kl_high"]
+    assert same["auc"] < near["auc"] < far["auc"] and far["auc"] > 0.85
+    assert same["ess"] > near["ess"] > far["ess"]
+    # KL of N(0, I) from N(mu, I) in 4-d is 4 mu^2 / 2: 0.18 and 4.5 nats; the estimate is in range
+    assert 0.05 < near["kl"] < 0.4 and 2.5 < far["kl"] < 6
+
+
+def test_effective_share_of_weights():
+    assert effective_share(np.ones(10)) == pytest.approx(1.0)
+    assert effective_share(np.array([1.0] + [0.0] * 9)) == pytest.approx(0.1)
+
+
+def _record(seed, stand, walk):
+    return {"seed": seed, **{task: {"return_mean": r, "student_to_teacher": r / 500, "teacher_return_mean": 500.0,
+                                    "eval_episodes": 5} for task, r in (("stand", stand), ("walk", walk))}}
+
+
+def test_student_table_gives_seed_intervals_and_normalised_scores():
+    norms = {"stand": {"random_return": 100.0, "expert_return": 1000.0},
+             "walk": {"random_return": 0.0, "expert_return": 1000.0}}
+    table = student_table({"a": [_record(0, 400, 500), _record(1, 500, 600), _record(2, 600, 700)],
+                           "b": [_record(0, 400, 500)]}, ("stand", "walk"), norms)
+    stand = table["a"]["stand"]
+    assert stand["return"]["mean"] == pytest.approx(500) and stand["return"]["n"] == 3
+    assert stand["return"]["ci_low"] < 500 < stand["return"]["ci_high"]
+    assert stand["normalised"]["mean"] == pytest.approx(100 * 400 / 900)
+    assert stand["to_teacher"]["mean"] == pytest.approx(1.0)
+    assert table["b"]["walk"]["return"]["ci_low"] is None  # one seed: no interval over seeds
+
+
+def test_variant_names_round_trip_and_change_one_setting(tiny_params):
+    assert composed_parts(composed_variant("random99", 16)) == ("random99", 16)
+    assert size_percent(size_variant(10)) == 10
+    assert composed_parts("w16") is None and size_percent("ds") is None and size_percent("data100") is None
+    base = distill_config(tiny_params, "mse")
+    wide = variant_config(base, composed_variant("noise", 32))
+    assert wide.student.hidden_sizes == (32, 32) and wide.data_fraction == 1
+    assert variant_config(base, size_variant(30)).data_fraction == pytest.approx(0.3)
+
+
+def test_the_shift_students_are_in_their_own_batches_and_not_eval_jobs(tiny_params):
+    catalogue = build_catalogue(tiny_params)
+    names = [run.name for run in catalogue.shift_students]
+    assert names == ["mse-on_online_w8-medium-0", "mse-on_random99_w8-medium-0", "mse-data50-medium-0"]
+    composed = catalogue.shift_students[1]
+    assert composed.composed == "random99"
+    assert composed.datasets == tuple(composed_file(task, "medium", "random99") for task in ("stand", "walk"))
+    assert catalogue.shift_students[2].datasets == (dataset_file("stand", "medium"), dataset_file("walk", "medium"))
+    assert {run.batch for run in catalogue.shift_students} <= set(catalogue.student_batches())
+    jobs = {job.checkpoint for job in catalogue.eval_jobs()}
+    assert not {run.paths.checkpoint for run in catalogue.shift_students} & jobs
+    assert not set(catalogue.shift_students) & set(catalogue.students)  # eval, shared_computation: not theirs
+    params = copy.deepcopy(tiny_params)
+    params["state_shift"].update(datasets=[], widths=[], data_percents=[])
+    assert build_catalogue(params).shift_students == ()
+
+
+METRICS = {
+    "pairing": "medium", "pairing_levels": {"stand": "medium", "walk": "medium"}, "student_width": 256,
+    "measure": {"states": 10000, "k": 5, "bootstrap": 10},
+    "shift": {t: {"reference": {"kl_null": 0.01, "kl_null_low": -0.1, "kl_null_high": 0.1},
+                  "medium": {"kl": 2.0, "kl_low": 1.5, "kl_high": 2.5, "auc": 0.8, "ess": 0.3},
+                  "online": {"kl": 0.02, "kl_low": -0.1, "kl_high": 0.1, "auc": 0.51, "ess": 0.97}}
+              for t in ("stand", "walk")},
+    "groups": {"offline_w256": {"data": "offline", "width": 256, "percent": 100},
+               "on_online_w256": {"data": "online", "width": 256, "percent": 100},
+               "data10": {"data": "offline", "width": 256, "percent": 10}},
+    "hypothesis": {"256": {"spearman": -0.5, "p_value": 0.3, "points": 4}},
+}
+
+
+def _row(value):
+    cell = {"mean": value, "ci_low": value - 10, "ci_high": value + 10, "n": 3}
+    return {"return": cell, "to_teacher": {"mean": value / 500, "ci_low": None, "ci_high": None, "n": 3},
+            "episodes_per_seed": 5}
+
+
+METRICS["students"] = {label: {"seeds": [0, 1, 2], "stand": _row(v), "walk": _row(v + 1)}
+                       for label, v in (("offline_w256", 400.0), ("on_online_w256", 450.0), ("data10", 300.0))}
+
+
+def test_the_report_section_shows_every_measured_table():
+    text = shift_section(METRICS, None, ("stand", "walk"), "state_shift/")
+    assert "## 5b. State distribution shift (thesis 5.2)" in text
+    assert "| stand | online | 0.02 [-0.10, 0.10] | 0.01 [-0.10, 0.10] | 0.510 | 0.970 |" in text
+    assert "### Online vs offline states (thesis 5.2.3, Figure 5.7)" in text
+    assert "| online | 450.0 [440.0, 460.0] (0.90) | 451.0 [441.0, 461.0] (0.90) |" in text
+    assert "| 10% | 300.0 [290.0, 310.0] (0.60) |" in text and "| 100% | 400.0 [390.0, 410.0] (0.80) |" in text
+    assert "rho = -0.50" in text and "![capacity](state_shift/capacity.png)" in text
+    assert "n=3 training seeds" in text
+
+
+def test_the_report_says_when_the_state_shift_study_did_not_run():
+    assert "Not part of this run" in shift_section(None, None, ("stand", "walk"), "state_shift/")
