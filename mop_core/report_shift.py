@@ -138,11 +138,13 @@ def capacity_lines(metrics: Mapping, tasks: Sequence[str], link_prefix: str) -> 
            f"![capacity]({link_prefix}capacity.png)", ""]
     corr = metrics.get("hypothesis") or {}
     if corr:
-        parts = [f"width {w}: rho = {fmt(c['spearman'], 2)} (p = {fmt(c['p_value'], 3)}, {c['points']} points)"
-                 for w, c in corr.items()]
-        out += ["Hypothesis 1 on the measured axis: Spearman's rank correlation between KL(T || D) and the "
-                "students' student/teacher return over every (dataset, task) at full size - " + "; ".join(parts)
-                + " (negative: more shift, less return).", "",
+        parts = [f"width {w}: " + ", ".join(f"{task} rho = {fmt(c['spearman'], 2)} (p = {fmt(c['p_value'], 2)}, "
+                                            f"{c['points']} datasets)" for task, c in by_task.items())
+                 for w, by_task in corr.items()]
+        out += ["Hypothesis 1 on the measured axis: per task and width, Spearman's rank correlation between "
+                "KL(T || D) and the students' student/teacher return over the datasets at full size (negative: "
+                "more shift, less return; per task, because the tasks' KL scales differ) - " + "; ".join(parts)
+                + ".", "",
                 f"![return against shift]({link_prefix}shift_returns.png)", ""]
     return out
 

@@ -114,10 +114,10 @@ def describe(label: str, width: int) -> dict:
     return {"data": OFFLINE, "width": width, "percent": size_percent(label)}
 
 
-def shift_points(metrics: dict, tasks) -> dict[int, list[tuple[float, float]]]:
-    """Per width: (measured KL(teacher || data), the students' mean student/teacher return) of every
-    dataset (offline and composed) and task, at full size."""
-    points: dict[int, list[tuple[float, float]]] = {}
+def shift_points(metrics: dict, tasks) -> dict[int, dict[str, list[tuple[float, float]]]]:
+    """Per width and task: (measured KL(teacher || data), the students' mean student/teacher return) of
+    every dataset (offline and composed), at full size."""
+    points: dict[int, dict[str, list[tuple[float, float]]]] = {}
     for label, info in metrics["groups"].items():
         if info["percent"] != 100:
             continue
@@ -125,20 +125,23 @@ def shift_points(metrics: dict, tasks) -> dict[int, list[tuple[float, float]]]:
             data = info["data"] if info["data"] != OFFLINE else metrics["pairing_levels"][task]
             measured = metrics["shift"].get(task, {}).get(data)
             if measured:
-                points.setdefault(info["width"], []).append(
+                points.setdefault(info["width"], {}).setdefault(task, []).append(
                     (measured["kl"], metrics["students"][label][task]["to_teacher"]["mean"]))
     return points
 
 
-def shift_correlations(metrics: dict, tasks) -> dict[str, dict]:
-    """Hypothesis 1 on a measured axis: per width, Spearman's rank correlation between the measured
-    shift and the student/teacher return over the (dataset, task) points (negative: more shift, less
-    return)."""
-    out = {}
-    for width, points in sorted(shift_points(metrics, tasks).items()):
-        if len(points) >= 3:
-            rho, p = spearmanr([p[0] for p in points], [p[1] for p in points])
-            out[str(width)] = {"spearman": float(rho), "p_value": float(p), "points": len(points)}
+def shift_correlations(metrics: dict, tasks) -> dict[str, dict[str, dict]]:
+    """Hypothesis 1 on a measured axis: per width and task, Spearman's rank correlation between the
+    measured shift and the student/teacher return over the datasets (negative: more shift, less
+    return). Per task: the tasks' KL scales differ (a teacher holding a pose is a near-degenerate
+    set), so pooling them would rank tasks, not shifts."""
+    out: dict[str, dict[str, dict]] = {}
+    for width, by_task in sorted(shift_points(metrics, tasks).items()):
+        for task, points in by_task.items():
+            if len(points) >= 3:
+                rho, p = spearmanr([q[0] for q in points], [q[1] for q in points])
+                out.setdefault(str(width), {})[task] = {"spearman": float(rho), "p_value": float(p),
+                                                        "points": len(points)}
     return out
 
 

@@ -105,7 +105,7 @@ METRICS = {
     "groups": {"offline_w256": {"data": "offline", "width": 256, "percent": 100},
                "on_online_w256": {"data": "online", "width": 256, "percent": 100},
                "data10": {"data": "offline", "width": 256, "percent": 10}},
-    "hypothesis": {"256": {"spearman": -0.5, "p_value": 0.3, "points": 4}},
+    "hypothesis": {"256": {"stand": {"spearman": -0.5, "p_value": 0.3, "points": 5}}},
 }
 
 
@@ -126,7 +126,8 @@ def test_the_report_section_shows_every_measured_table():
     assert "### Online vs offline states (thesis 5.2.3, Figure 5.7)" in text
     assert "| online | 450.0 [440.0, 460.0] (0.90) | 451.0 [441.0, 461.0] (0.90) |" in text
     assert "| 10% | 300.0 [290.0, 310.0] (0.60) |" in text and "| 100% | 400.0 [390.0, 410.0] (0.80) |" in text
-    assert "rho = -0.50" in text and "![capacity](state_shift/capacity.png)" in text
+    assert "width 256: stand rho = -0.50 (p = 0.30, 5 datasets)" in text
+    assert "![capacity](state_shift/capacity.png)" in text
     assert "n=3 training seeds" in text
 
 
