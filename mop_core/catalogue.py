@@ -26,6 +26,7 @@ from mop_core.runs import (
     StudentRun,
     TeacherRun,
     composed_variant,
+    correction_variant,
     cross_group,
     own_teacher,
     ranking_variant,
@@ -251,11 +252,13 @@ def make_structure_student(variant: str, pairing: str, seed: int, tasks: tuple[s
 
 
 def shift_variants(params: Mapping[str, Any]) -> tuple[str, tuple[str, ...]]:
-    """The state_shift section's pairing and student variants: per composed dataset every width, then
-    the dataset sizes."""
+    """The state_shift section's pairing and student variants: per composed dataset every width, the
+    dataset sizes, then per correction, dataset and width the correcting students (dvc.yaml's order)."""
     grid = shift_grid(params, study_config(params))
     return grid.pairing, (tuple(composed_variant(d, w) for d in grid.datasets for w in grid.widths)
-                          + tuple(size_variant(p) for p in grid.data_percents))
+                          + tuple(size_variant(p) for p in grid.data_percents)
+                          + tuple(correction_variant(c, d, w) for c in grid.corrections
+                                  for d in grid.correction_datasets for w in grid.correction_widths))
 
 
 def structure_variants(params: Mapping[str, Any]) -> tuple[str, tuple[str, ...]]:
@@ -311,7 +314,7 @@ def student_inputs(runs: list[StudentRun]) -> dict:
     first = runs[0]
     if any(run.all_teachers != first.all_teachers for run in runs):
         raise ValueError(f"runs: the students of {first.batch} must learn from the same teachers")
-    datasets = list(dict.fromkeys([*first.datasets, *(d for t in first.all_teachers for d in t.datasets)]))
+    datasets = list(dict.fromkeys([*first.input_datasets, *(d for t in first.all_teachers for d in t.datasets)]))
     return {"students": [run.name for run in runs], "tasks": list(first.tasks),
             "teachers": [{"path": t.paths.checkpoint.as_posix(), "sha256": file_sha256(t.paths.checkpoint)}
                          for t in first.all_teachers],

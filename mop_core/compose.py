@@ -20,6 +20,12 @@ the online dataset's first ones (common random numbers: the datasets differ only
 A separate set of ``reference_episodes`` teacher episodes on other seeds is the teacher's state
 distribution against which the state_shift stage measures each dataset (held out: the online
 dataset is compared with teacher states it does not contain).
+
+Each dataset also gets ``heldout_episodes`` held-out episodes of the same composition
+(``<name>_heldout``: a train/validation split of whole episodes, as OGBench ships), from three more
+pools on their own seeds: the student's action error on them is its error off its training states
+(issue 18 part 5). Their teacher episodes are ``round(teacher_share * heldout_episodes)``, which may be
+0 (random99 at 10 held-out episodes: the expected 0.1 rounds to none).
 """
 
 from __future__ import annotations
@@ -33,11 +39,13 @@ import numpy as np
 
 from mop_core.config import from_mapping, keys_under, require
 from mop_core.data import write_dataset
+from mop_core.layout import REFERENCE, heldout_name
 from mop_core.rollout import Policy, collect_episodes
 from mop_core.runtime import derive_seeds
 
 REST_POLICIES = ("noise", "random")
-REFERENCE = "reference"  # the held-out teacher episodes' file (not a composition name)
+POOLS = ("teacher", *REST_POLICIES)
+HELDOUT = "heldout_"  # the held-out pools' prefix: heldout_teacher, heldout_noise, heldout_random
 
 
 @dataclass(frozen=True)
@@ -51,9 +59,10 @@ class Composition:
         require(0 < self.teacher_share <= 1, "teacher_share", "a share in (0, 1]", self.teacher_share)
         require(self.rest in REST_POLICIES, "rest", f"one of {', '.join(REST_POLICIES)}", self.rest)
 
-    def teacher_episodes(self, episodes: int) -> int:
-        """Whole teacher episodes of a dataset of ``episodes``: the share rounded, at least one."""
-        return min(episodes, max(1, int(round(self.teacher_share * episodes))))
+    def teacher_episodes(self, episodes: int, at_least_one: bool = True) -> int:
+        """Whole teacher episodes of a dataset of ``episodes``: the share rounded, at least one (a
+        held-out set: ``at_least_one=False``, the share rounded)."""
+        return min(episodes, max(int(at_least_one), int(round(self.teacher_share * episodes))))
 
 
 THESIS_COMPOSITIONS = {"online": Composition(1.0), "noise": Composition(0.1, "noise"),
@@ -69,6 +78,7 @@ class ComposeConfig:
     episodes: int = 100  # per composed dataset
     noise_std: float = 1.0  # sigma of the noisy teacher's Gaussian action noise
     reference_episodes: int = 20  # held-out teacher episodes: the teacher's state distribution
+    heldout_episodes: int = 10  # per composed dataset: held-out episodes of its composition
     rollout_envs: int = 10
 
     def __post_init__(self) -> None:
@@ -83,25 +93,35 @@ class ComposeConfig:
         object.__setattr__(self, "compositions", compositions)
         for i, name in enumerate(self.datasets):
             require(name in compositions, f"datasets[{i}]", f"one of compositions {sorted(compositions)}", name)
-            require(name != REFERENCE and "-" not in name and name.isidentifier(), f"datasets[{i}]",
-                    f"a name of letters, digits and '_' other than {REFERENCE!r}", name)
+            require(name != REFERENCE and "-" not in name and name.isidentifier()
+                    and not name.endswith(heldout_name("")), f"datasets[{i}]", f"a name of letters, digits and "
+                    f"'_' other than {REFERENCE!r}, not ending in {heldout_name('')!r}", name)
         require(len(set(self.datasets)) == len(self.datasets), "datasets", "a list without repeats",
                 list(self.datasets))
         require(self.episodes >= 1, "episodes", "a positive integer", self.episodes)
         require(self.noise_std >= 0, "noise_std", "a non-negative number", self.noise_std)
         require(self.reference_episodes >= 2, "reference_episodes", "at least 2 (the shift's split-half null "
                 "compares two halves)", self.reference_episodes)
+        require(self.heldout_episodes >= 1, "heldout_episodes", "a positive integer (the students' held-out "
+                "action error)", self.heldout_episodes)
         require(self.rollout_envs >= 1, "rollout_envs", "a positive integer", self.rollout_envs)
 
-    def pool_sizes(self) -> dict[str, int]:
-        """Episodes rolled out per pool (teacher, noise, random): what the datasets need, at most."""
-        sizes = {"teacher": 0, "noise": 0, "random": 0}
+    def counts(self, name: str, heldout: bool = False) -> tuple[int, int]:
+        """(teacher episodes, rest episodes) of dataset ``name`` or of its held-out set."""
+        episodes = self.heldout_episodes if heldout else self.episodes
+        teacher = self.compositions[name].teacher_episodes(episodes, at_least_one=not heldout)
+        return teacher, episodes - teacher
+
+    def pool_sizes(self, heldout: bool = False) -> dict[str, int]:
+        """Episodes rolled out per pool (teacher, noise, random): what the datasets (or their held-out
+        sets) need, at most."""
+        sizes = dict.fromkeys(POOLS, 0)
         for name in self.datasets:
-            composition = self.compositions[name]
-            teacher = composition.teacher_episodes(self.episodes)
+            teacher, rest = self.counts(name, heldout)
             sizes["teacher"] = max(sizes["teacher"], teacher)
-            if teacher < self.episodes:
-                sizes[composition.rest] = max(sizes[composition.rest], self.episodes - teacher)
+            if rest:
+                rest_pool = self.compositions[name].rest
+                sizes[rest_pool] = max(sizes[rest_pool], rest)
         return sizes
 
 
@@ -125,44 +145,62 @@ def pool_seeds(seed: int, task: str, level: str, pool: str, count: int) -> list[
     return [base + j for j in range(count)]
 
 
+def roll_pools(teacher: Policy, task: str, level: str, sizes: Mapping[str, int], noise_std: float, seed: int,
+               episode_length: int, rollout_envs: int, prefix: str = "") -> dict[str, dict[str, np.ndarray]]:
+    """The teacher, noisy-teacher and random pools of one task (``prefix``: the held-out pools, on
+    their own seeds), each ``sizes[pool]`` episodes (none when 0)."""
+    pools: dict[str, dict[str, np.ndarray]] = {}
+    rng = {name: np.random.default_rng(derive_seeds([seed, "compose", task, level, prefix + name],
+                                                    ("actions",))["actions"]) for name in REST_POLICIES}
+    policies = {"teacher": (teacher, 0.0, None), "noise": (teacher, noise_std, rng["noise"]),
+                "random": (random_policy(rng["random"]), 0.0, None)}
+    for name, (policy, std, noise_rng) in policies.items():
+        if sizes[name]:
+            pools[name] = collect_episodes(policy, task, pool_seeds(seed, task, level, prefix + name, sizes[name]),
+                                           episode_length, rollout_envs, std, noise_rng)
+    return pools
+
+
+def composed_arrays(pools: Mapping[str, Mapping[str, np.ndarray]], teacher_count: int, rest_count: int, rest: str,
+                    episode_length: int) -> dict[str, np.ndarray]:
+    """The first ``teacher_count`` episodes of the teacher pool, then the first ``rest_count`` of the
+    ``rest`` pool."""
+    parts = []
+    if teacher_count:
+        parts.append(_episode_slice(pools["teacher"], teacher_count, episode_length))
+    if rest_count:
+        parts.append(_episode_slice(pools[rest], rest_count, episode_length))
+    return concatenate(parts)
+
+
 def compose_task(teacher: Policy, task: str, level: str, config: ComposeConfig, seed: int, episode_length: int,
                  write: Callable[[str, dict[str, np.ndarray], dict[str, Any]], None]) -> dict[str, dict]:
-    """Roll out the pools of one task and write each composed dataset and the reference episodes
-    through ``write(name, arrays, attrs)``. Returns per dataset its composition and episode counts."""
-    sizes = config.pool_sizes()
-    pools: dict[str, dict[str, np.ndarray]] = {}
-    rng = {name: np.random.default_rng(derive_seeds([seed, "compose", task, level, name], ("actions",))["actions"])
-           for name in ("noise", "random")}
-    if sizes["teacher"]:
-        pools["teacher"] = collect_episodes(teacher, task, pool_seeds(seed, task, level, "teacher", sizes["teacher"]),
-                                            episode_length, config.rollout_envs)
-    if sizes["noise"]:
-        pools["noise"] = collect_episodes(teacher, task, pool_seeds(seed, task, level, "noise", sizes["noise"]),
-                                          episode_length, config.rollout_envs, config.noise_std, rng["noise"])
-    if sizes["random"]:
-        pools["random"] = collect_episodes(random_policy(rng["random"]), task,
-                                           pool_seeds(seed, task, level, "random", sizes["random"]),
-                                           episode_length, config.rollout_envs)
+    """Roll out the pools of one task and write each composed dataset, its held-out episodes and the
+    reference episodes through ``write(name, arrays, attrs)``. Returns per dataset its composition and
+    episode counts."""
+    def roll(sizes: Mapping[str, int], prefix: str = "") -> dict[str, dict[str, np.ndarray]]:
+        return roll_pools(teacher, task, level, sizes, config.noise_std, seed, episode_length, config.rollout_envs,
+                          prefix)
+
+    pools, heldout_pools = roll(config.pool_sizes()), roll(config.pool_sizes(heldout=True), HELDOUT)
     reference = collect_episodes(teacher, task, pool_seeds(seed, task, level, REFERENCE, config.reference_episodes),
                                  episode_length, config.rollout_envs)
     summary = {}
     for name in config.datasets:
         composition = config.compositions[name]
-        teacher_count = composition.teacher_episodes(config.episodes)
-        rest_count = config.episodes - teacher_count
-        parts = [_episode_slice(pools["teacher"], teacher_count, episode_length)]
-        if rest_count:
-            parts.append(_episode_slice(pools[composition.rest], rest_count, episode_length))
-        arrays = concatenate(parts)
-        attrs = {"composition": name, "teacher_episodes": teacher_count, "rest": composition.rest,
-                 "rest_episodes": rest_count, "noise_std": config.noise_std}
-        write(name, arrays, attrs)
-        returns = arrays["rewards"].reshape(-1, episode_length).sum(1)
-        summary[name] = {"teacher_episodes": teacher_count, "rest": composition.rest if rest_count else None,
-                         "rest_episodes": rest_count, "transitions": len(arrays["rewards"]),
-                         "return_mean": float(returns.mean()), "return_std": float(returns.std())}
+        for file_name, source, heldout in ((name, pools, False), (heldout_name(name), heldout_pools, True)):
+            teacher_count, rest_count = config.counts(name, heldout)
+            arrays = composed_arrays(source, teacher_count, rest_count, composition.rest, episode_length)
+            write(file_name, arrays, {"composition": name, "teacher_episodes": teacher_count,
+                                      "rest": composition.rest, "rest_episodes": rest_count,
+                                      "noise_std": config.noise_std, "heldout": int(heldout)})
+            returns = arrays["rewards"].reshape(-1, episode_length).sum(1)
+            summary[file_name] = {"teacher_episodes": teacher_count,
+                                  "rest": composition.rest if rest_count else None, "rest_episodes": rest_count,
+                                  "transitions": len(arrays["rewards"]), "return_mean": float(returns.mean()),
+                                  "return_std": float(returns.std())}
     write(REFERENCE, reference, {"composition": REFERENCE, "teacher_episodes": config.reference_episodes,
-                                 "rest": "none", "rest_episodes": 0, "noise_std": 0.0})
+                                 "rest": "none", "rest_episodes": 0, "noise_std": 0.0, "heldout": 0})
     ref_returns = reference["rewards"].reshape(-1, episode_length).sum(1)
     summary[REFERENCE] = {"teacher_episodes": config.reference_episodes, "transitions": len(reference["rewards"]),
                           "return_mean": float(ref_returns.mean()), "return_std": float(ref_returns.std())}
@@ -184,7 +222,8 @@ def compose_config(grid) -> ComposeConfig:
     with keys_under("state_shift"):
         return ComposeConfig(datasets=tuple(grid.datasets), compositions=dict(grid.compositions or THESIS_COMPOSITIONS),
                              episodes=grid.episodes, noise_std=grid.noise_std,
-                             reference_episodes=grid.reference_episodes, rollout_envs=grid.rollout_envs)
+                             reference_episodes=grid.reference_episodes, heldout_episodes=grid.heldout_episodes,
+                             rollout_envs=grid.rollout_envs)
 
 
 def compose_teacher_data(teacher_path: Path, task: str, level: str, config: ComposeConfig, seed: int,

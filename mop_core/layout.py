@@ -41,9 +41,19 @@ def dataset_file(task: str, level: str) -> Path:
     return DATA / "datasets" / f"{task}-{level}.hdf5"
 
 
+REFERENCE = "reference"  # the compose stage's held-out teacher episodes (not a composition name)
+HELDOUT_SUFFIX = "_heldout"  # a composed dataset's held-out episodes: ``<name>_heldout``
+
+
 def composed_file(task: str, level: str, name: str) -> Path:
-    """A composed dataset of task's ``level`` teacher's rollouts (thesis 5.2.4; mop_core.compose)."""
+    """A composed dataset of task's ``level`` teacher's rollouts (thesis 5.2.4; mop_core.compose), its
+    held-out episodes (``heldout_name(name)``) or the teacher's reference episodes (``REFERENCE``)."""
     return DATA / "composed" / f"{task}-{level}-{name}.hdf5"
+
+
+def heldout_name(name: str) -> str:
+    """The file name of composed dataset ``name``'s held-out episodes (same composition, other seeds)."""
+    return f"{name}{HELDOUT_SUFFIX}"
 
 
 def relabel_file(task: str, level: str) -> Path:

@@ -20,8 +20,9 @@ or for the ranking regulariser: a lower bound for width 512 and for the regulari
 student (distill_single) its task's share of a multi-task student's update; a data-sharing
 teacher (train_shared_teachers) costs what a deterministic teacher does (its data is larger, its
 updates are not) and a data-sharing or substituted-set student (distill_sharing, distill_substitute)
-what a plain MSE student does; the state-shift students (distill_composed, distill_size) too, whatever
-their width (a lower bound for width 512), and compose rolls out its pools at the rollout rate, its
+what a plain MSE student does; the state-shift students (distill_composed, distill_size,
+distill_corrected) too, whatever their width (a lower bound for width 512; a reweighted student's
+classifier is left out, DAgger's rollouts are counted), and compose rolls out its pools at the rollout rate, its
 task processes in waves of ``state_shift.workers`` (the state_shift stage's measures, seconds, are
 left out). It is an estimate from rates measured in isolation, not a measurement of the stages.
 """
@@ -159,13 +160,21 @@ def stage_hours(params: Mapping[str, Any], rates: Rates) -> dict[str, tuple[int,
         if teacher < episodes:
             rest = composition.get("rest", "noise")
             pools[rest] = max(pools[rest], episodes - teacher)
-    composed = (sum(pools.values()) + shift.get("reference_episodes", 0)) * length if datasets else 0
+    heldout = shift.get("heldout_episodes", 0)  # per dataset, its composition's held-out episodes (pools of their own)
+    composed = (sum(pools.values()) + shift.get("reference_episodes", 0) + len(datasets) * heldout) * length \
+        if datasets else 0
     waves = math.ceil(len(tasks) / max(shift.get("workers", 1), 1))
     out["compose"] = (len(tasks) * len(datasets), waves * composed / rates.rollout / 3600)
     entries = len(datasets) * len(shift.get("widths", []))  # the plain width's rate: wide ones cost more
     out["distill_composed"] = (entries * seeds, entries * per_entry / 3600)
     entries = len(shift.get("data_percents", []))
     out["distill_size"] = (entries * seeds, entries * per_entry / 3600)
+    corrections = shift.get("corrections", [])
+    entries = len(shift.get("correction_datasets", [])) * len(shift.get("correction_widths", []))
+    dagger = params["distill"].get("dagger", {})  # its rounds' rollouts: every seed's student, per task
+    dagger_steps = dagger.get("rounds", 0) * dagger.get("episodes", 0) * seeds * len(tasks) * length
+    out["distill_corrected"] = (len(corrections) * entries * seeds, entries * (
+        len(corrections) * per_entry + ("dagger" in corrections) * dagger_steps / rates.rollout) / 3600)
 
     policies = (2 * len(tasks)  # behaviour medium and expert
                 + shared_teachers
@@ -186,7 +195,8 @@ SCALED = [(("collect", "schedule"), "total_steps", 20), (("collect", "schedule")
           (("collect", "schedule"), "snapshot_eval_episodes", 1), (("collect", "schedule"), "random_episodes", 1),
           (("collect", "datasets"), "expert_episodes", 2), (("collect", "datasets"), "medium_episodes", 2),
           (("eval",), "episodes", 2), (("shared_computation",), "episodes", 1),
-          (("state_shift",), "episodes", 2), (("state_shift",), "reference_episodes", 2)] + [
+          (("state_shift",), "episodes", 2), (("state_shift",), "reference_episodes", 2),
+          (("state_shift",), "heldout_episodes", 1), (("distill", "dagger"), "episodes", 1)] + [
     ((section, "schedule"), key, floor) for section in ("train_teachers", "distill")
     for key, floor in (("steps", 10), ("eval_every", 5), ("checkpoint_every", 5), ("eval_episodes", 1),
                        ("final_eval_episodes", 1))]

@@ -8,9 +8,14 @@ from __future__ import annotations
 
 from typing import Mapping, Sequence
 
+from mop_core.layout import HELDOUT_SUFFIX
 from mop_core.report import fmt, not_run, table
 
 OFFLINE = "offline"
+
+
+def _plain(info: Mapping) -> bool:
+    return info.get("correction", "none") == "none"
 
 
 def _interval(entry: Mapping | None, digits: int = 1) -> str:
@@ -45,7 +50,7 @@ def composed_lines(compose: Mapping | None) -> list[str]:
         datasets = sorted(summary["datasets"].items(), key=lambda item: (item[0] == "reference",
                                                                           -item[1]["teacher_episodes"], item[0]))
         for name, d in datasets:
-            if name == "reference":
+            if name == "reference" or name.endswith(HELDOUT_SUFFIX):
                 continue
             rest = f"{d['rest_episodes']} {d['rest']}" if d.get("rest_episodes") else "-"
             rows.append([key, name, str(d["teacher_episodes"]), rest,
@@ -96,8 +101,9 @@ def shift_lines(metrics: Mapping) -> list[str]:
 def online_lines(metrics: Mapping, tasks: Sequence[str]) -> list[str]:
     groups, students = metrics.get("groups", {}), metrics.get("students", {})
     width = metrics.get("student_width")
-    offline = _rows_by(groups, lambda i: i["data"] == OFFLINE and i["width"] == width and i["percent"] == 100)
-    online = _rows_by(groups, lambda i: i["data"] == "online" and i["width"] == width)
+    offline = _rows_by(groups, lambda i: i["data"] == OFFLINE and i["width"] == width and i["percent"] == 100
+                       and _plain(i))
+    online = _rows_by(groups, lambda i: i["data"] == "online" and i["width"] == width and _plain(i))
     if not (offline and online):
         return []
     rows = [[_data_label(groups[label]["data"], metrics.get("pairing_levels", {}))]
@@ -119,7 +125,7 @@ def _seed_caption(students: Mapping, labels: Sequence[str]) -> str:
 
 def capacity_lines(metrics: Mapping, tasks: Sequence[str], link_prefix: str) -> list[str]:
     groups, students = metrics.get("groups", {}), metrics.get("students", {})
-    labels = _rows_by(groups, lambda i: i["percent"] == 100)
+    labels = _rows_by(groups, lambda i: i["percent"] == 100 and _plain(i))
     composed = [label for label in labels if groups[label]["data"] != OFFLINE]
     if not composed:
         return []
@@ -152,7 +158,7 @@ def capacity_lines(metrics: Mapping, tasks: Sequence[str], link_prefix: str) -> 
 def size_lines(metrics: Mapping, tasks: Sequence[str]) -> list[str]:
     groups, students = metrics.get("groups", {}), metrics.get("students", {})
     width = metrics.get("student_width")
-    labels = _rows_by(groups, lambda i: i["data"] == OFFLINE and i["width"] == width)
+    labels = _rows_by(groups, lambda i: i["data"] == OFFLINE and i["width"] == width and _plain(i))
     if len(labels) < 2:
         return []
     labels.sort(key=lambda label: groups[label]["percent"])
@@ -164,6 +170,68 @@ def size_lines(metrics: Mapping, tasks: Sequence[str]) -> list[str]:
             "(100%: plain MOP). " + _seed_caption(students, labels), ""]
 
 
+def _label(info: Mapping, levels: Mapping[str, str]) -> str:
+    what = _data_label(info["data"], levels)
+    if info["percent"] != 100:
+        what = f"{info['percent']}% of the {what}"
+    correction = "" if _plain(info) else f", {info['correction']}"
+    return f"{what}, width {info['width']}{correction}"
+
+
+def error_lines(metrics: Mapping, tasks: Sequence[str]) -> list[str]:
+    groups, students = metrics.get("groups", {}), metrics.get("students", {})
+    labels = [label for label in groups if any(students[label][t].get("action_mse") for t in tasks)]
+    if not labels:
+        return []
+    rows = []
+    for label in labels:
+        for task in tasks:
+            errors = students[label][task].get("action_mse", {})
+            rows.append([_label(groups[label], metrics.get("pairing_levels", {})), task]
+                        + [_interval(errors.get(kind), 3) for kind in ("train", "heldout", "visited")])
+    return ["### Where the students go wrong (issue 18 part 5)", "",
+            table(["students", "task", "on training states", "on held-out episodes", "on states it visits"], rows),
+            "", "Action error ||pi_T(s) - pi_S(s, i)||^2 (summed over the 6 action dimensions), mean over each "
+            "student's states; mean over the training seeds with a Student-t 95% interval over them. Training "
+            "states: the dataset it learned on (a DAgger student's before aggregation); held-out: episodes of the "
+            "same data it never saw (a composed dataset's held-out episodes, a dataset share's other episodes; "
+            "'-': none); visited: the states its own final-evaluation episodes visit, labelled by the teacher. "
+            "Visited >> held-out is the state distribution shift at work: the student is accurate where its data "
+            "is and wrong where it goes.", ""]
+
+
+def correction_lines(metrics: Mapping, tasks: Sequence[str]) -> list[str]:
+    corrections, groups, students = metrics.get("corrections") or {}, metrics.get("groups", {}), \
+        metrics.get("students", {})
+    if not corrections:
+        return []
+    levels = metrics.get("pairing_levels", {})
+    rows = []
+    for label, c in corrections.items():
+        for row_label in (c["plain"], label):
+            rows.append([_label(groups[row_label], levels)] + [_cell(students[row_label], t) for t in tasks]
+                        + ([_interval(c[t]["gain"]) for t in tasks] if row_label == label else ["" for _ in tasks]))
+    return ["### Correcting the shift: reweighting and DAgger (thesis 5.3; issue 18 part 6)", "",
+            table(["students"] + [f"{t}: return [95% CI] (student/teacher)" for t in tasks]
+                  + [f"{t}: gain over plain [95% CI]" for t in tasks], rows), "",
+            "Each correcting group under the plain students of the same data and width. reweight: states drawn "
+            "in proportion to a clipped density ratio p_T/p_D from a classifier of the teacher's held-out visited "
+            "states against the dataset's (the thesis's proposal, 5.3; mop_core/distill/corrections.py); dagger: "
+            "the student-sampled reference (the students act online between phases of training, the teacher "
+            "labels what they visit, the states join their data; same gradient steps, plus online episodes offline "
+            "distillation does not have: an upper bound for what correcting the shift can give). Gain: the return "
+            "difference paired by training seed, mean and Student-t 95% interval over the seeds. "
+            + _seed_caption(students, [label for label in corrections])] + _weights_caption(corrections, tasks) + [""]
+
+
+def _weights_caption(corrections: Mapping, tasks: Sequence[str]) -> list[str]:
+    parts = [f"{label} {task}: classifier AUC {fmt(w['reweight_auc'], 3)}, effective sample share "
+             f"{fmt(w['reweight_ess_unclipped'], 3)} unclipped, {fmt(w['reweight_ess'], 3)} clipped "
+             f"({fmt(100 * w['reweight_clipped_share'], 1)}% of states at the clip)"
+             for label, c in corrections.items() for task in tasks if (w := c[task].get("reweight"))]
+    return ["", "The weights: " + "; ".join(parts) + "."] if parts else []
+
+
 def shift_section(metrics: Mapping | None, compose: Mapping | None, tasks: Sequence[str], link_prefix: str) -> str:
     """Section 5b: composed datasets, the measured shift, online vs offline, capacity and size."""
     out = ["## 5b. State distribution shift (thesis 5.2)", ""]
@@ -172,4 +240,5 @@ def shift_section(metrics: Mapping | None, compose: Mapping | None, tasks: Seque
                                         "data_percents and `dvc repro state_shift`."), ""])
     out += composed_lines(compose) + shift_lines(metrics) + online_lines(metrics, tasks)
     out += capacity_lines(metrics, tasks, link_prefix) + size_lines(metrics, tasks)
+    out += error_lines(metrics, tasks) + correction_lines(metrics, tasks)
     return "\n".join(out)

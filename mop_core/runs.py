@@ -30,13 +30,16 @@ from typing import Sequence
 
 from mop_core.artifacts import RunPaths
 from mop_core.layout import (
+    REFERENCE,
     behaviour_checkpoint,
     composed_file,
     dataset_file,
+    heldout_name,
     relabel_file,
     run_paths,
     tau_curves_dir,
 )
+from mop_core.study import OFFLINE_DATA, SHIFT_CORRECTIONS
 from mop_core.tasks import data_tasks, substitute_base, substitute_tasks
 
 BEHAVIOUR_LEVELS = ("medium", "expert")  # the collect stage's snapshots
@@ -112,6 +115,25 @@ def composed_parts(variant: str) -> tuple[str, int] | None:
     """(composed dataset, width) of a composed-data variant, None for any other variant."""
     match = re.fullmatch(rf"{COMPOSED_PREFIX}(\w+?)_{WIDTH_PREFIX}([1-9][0-9]*)", variant)
     return (match.group(1), int(match.group(2))) if match else None
+
+
+def correction_variant(correction: str, dataset: str, width: int) -> str:
+    """The variant of students of width ``width`` that correct for the state shift of ``dataset`` (a
+    composed dataset or ``offline``) by ``correction`` (reweight, dagger): ``reweight_random90_w256``."""
+    return f"{correction}_{dataset}_{WIDTH_PREFIX}{width}"
+
+
+def correction_parts(variant: str) -> tuple[str, str, int] | None:
+    """(correction, dataset, width) of a correction variant, None for any other variant."""
+    match = re.fullmatch(rf"({'|'.join(SHIFT_CORRECTIONS)})_(\w+?)_{WIDTH_PREFIX}([1-9][0-9]*)", variant)
+    return (match.group(1), match.group(2), int(match.group(3))) if match else None
+
+
+def shift_data(variant: str) -> tuple[str, int] | None:
+    """(dataset, width) of a composed-data or correction variant (dataset ``offline``: the collect
+    dataset), None for any other variant."""
+    parts = correction_parts(variant)
+    return parts[1:] if parts else composed_parts(variant)
 
 
 def size_variant(percent: int) -> str:
@@ -327,8 +349,36 @@ class StudentRun:
     @property
     def composed(self) -> str:
         """The composed dataset it learns from (thesis 5.2.4; mop_core.compose), "" for the offline data."""
-        parts = composed_parts(self.variant)
+        parts = shift_data(self.variant)
+        return parts[0] if parts and parts[0] != OFFLINE_DATA else ""
+
+    @property
+    def correction(self) -> str:
+        """How it corrects for the state shift (reweight, dagger: thesis 5.3), "" when it does not."""
+        parts = correction_parts(self.variant)
         return parts[0] if parts else ""
+
+    @property
+    def heldout_datasets(self) -> tuple[Path, ...]:
+        """Per task, held-out episodes of its data's distribution (a composed dataset's: mop_core.compose),
+        on which its action error off the training states is measured; () when there are none."""
+        if not self.composed:
+            return ()
+        return tuple(composed_file(task, level, heldout_name(self.composed))
+                     for task, level in zip(self.tasks, self.levels))
+
+    @property
+    def reference_datasets(self) -> tuple[Path, ...]:
+        """A reweighted student's: per task, the teacher's held-out visited states (the compose stage's
+        reference episodes) its density ratio is estimated against; () otherwise."""
+        if self.correction != "reweight":
+            return ()
+        return tuple(composed_file(task, level, REFERENCE) for task, level in zip(self.tasks, self.levels))
+
+    @property
+    def input_datasets(self) -> tuple[Path, ...]:
+        """Every dataset file it reads: its states, held-out episodes and reference states."""
+        return (*self.datasets, *self.heldout_datasets, *self.reference_datasets)
 
     @property
     def datasets(self) -> tuple[Path, ...]:

@@ -74,6 +74,19 @@ def knn_kl(x: np.ndarray | torch.Tensor, y: np.ndarray | torch.Tensor, k: int = 
     return float(d * torch.log(nu / rho).mean() + np.log(m / (n - 1)))
 
 
+def draw(states: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
+    """``count`` rows drawn without replacement (all of them when there are fewer)."""
+    if len(states) <= count:
+        return np.asarray(states, dtype=np.float32)
+    return np.asarray(states[np.sort(rng.choice(len(states), size=count, replace=False))], dtype=np.float32)
+
+
+def effective_share(weights: np.ndarray) -> float:
+    """``(sum w)^2 / (n sum w^2)``: the share of n equally weighted samples that the weights are worth."""
+    w = np.asarray(weights, dtype=np.float64)
+    return float(w.sum() ** 2 / (len(w) * (w ** 2).sum()))
+
+
 def split_half_null(x: np.ndarray, statistic: Statistic, seed: int = 0) -> float:
     """The statistic between two random halves of the same states: its value under no shift at half
     the sample size (the reference a measured shift is read against)."""

@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from mop_core.config import from_mapping, require
-from mop_core.shift import ClassifierConfig, classifier_test, knn_kl
+from mop_core.shift import ClassifierConfig, classifier_test, draw, effective_share, knn_kl
 from mop_core.statistics import MIN_SEEDS_FOR_SEED_CI, confidence_interval, normalised_score
 
 
@@ -53,22 +53,12 @@ class MeasureConfig:
         require(self.threads >= 1, "threads", "a positive integer", self.threads)
 
 
+ACTION_ERRORS = ("train", "heldout", "visited")  # where a student's action error to its teacher is measured
+
+
 def measure_config(grid) -> MeasureConfig:
     """The measure settings of a :class:`mop_core.study.ShiftGrid`."""
     return from_mapping(MeasureConfig, grid.measure or {}, "state_shift.measure")
-
-
-def draw(states: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
-    """``count`` rows drawn without replacement (all of them when there are fewer)."""
-    if len(states) <= count:
-        return np.asarray(states, dtype=np.float32)
-    return np.asarray(states[np.sort(rng.choice(len(states), size=count, replace=False))], dtype=np.float32)
-
-
-def effective_share(weights: np.ndarray) -> float:
-    """``(sum w)^2 / (n sum w^2)``: the share of n equally weighted samples that the weights are worth."""
-    w = np.asarray(weights, dtype=np.float64)
-    return float(w.sum() ** 2 / (len(w) * (w ** 2).sum()))
 
 
 def half_estimates(x: np.ndarray, y: np.ndarray, statistic, reps: int, seed: int) -> list[float]:
@@ -150,5 +140,38 @@ def student_table(groups: Mapping[str, Sequence[Mapping]], tasks: Sequence[str],
                          "to_teacher": seed_interval([r[task]["student_to_teacher"] for r in records]),
                          "teacher_return": records[0][task]["teacher_return_mean"],
                          "episodes_per_seed": records[0][task]["eval_episodes"]}
+            errors = [r[task].get("action_mse", {}) for r in records]
+            row[task]["action_mse"] = {kind: seed_interval([e[kind] for e in errors])
+                                       for kind in ACTION_ERRORS if all(kind in e for e in errors)}
         table[label] = row
     return table
+
+
+def correction_table(records: Mapping[str, Sequence[Mapping]], groups: Mapping[str, Mapping], tasks: Sequence[str]
+                     ) -> dict[str, dict]:
+    """Per correcting group (``groups[label]["correction"]`` reweight or dagger), its gain over the plain
+    students on the same data and width (the group whose info matches with correction none), per
+    task: the return difference paired by training seed, mean with its t-interval over the seeds
+    (each pair shares its seed's initialisation; the data or its weighting differs)."""
+    out: dict[str, dict] = {}
+    for label, info in groups.items():
+        if info.get("correction", "none") == "none":
+            continue
+        base = next((other for other, o in groups.items() if o.get("correction", "none") == "none"
+                     and (o["data"], o["width"], o["percent"]) == (info["data"], info["width"], info["percent"])),
+                    None)
+        if base is None or base not in records:
+            continue
+        plain_by_seed = {r["seed"]: r for r in records[base]}
+        pairs = [(r, plain_by_seed[r["seed"]]) for r in records[label] if r["seed"] in plain_by_seed]
+        if not pairs:
+            continue
+        out[label] = {"plain": base, "correction": info["correction"], "data": info["data"], "width": info["width"],
+                      "seeds": [r["seed"] for r, _ in pairs]}
+        for task in tasks:
+            out[label][task] = {
+                "gain": seed_interval([r[task]["return_mean"] - b[task]["return_mean"] for r, b in pairs]),
+                "to_teacher_gain": seed_interval([r[task]["student_to_teacher"] - b[task]["student_to_teacher"]
+                                                  for r, b in pairs]),
+                "reweight": records[label][0][task].get("reweight")}  # the weights' AUC, ESS (shared by seeds)
+    return out

@@ -131,6 +131,8 @@ SHARING_STUDENTS = {"ds": "ds", "oqs_own": "oqs", "oqs_target": "oqs"}  # studen
 # the students of a substituted task set: MOP's (its substitute's own teacher, on D_{base->substitute}, trains
 # with the OQS teachers) and the data-sharing ones
 SUBSTITUTE_STUDENTS = {"mop": "oqs"} | SHARING_STUDENTS
+SHIFT_CORRECTIONS = ("reweight", "dagger")  # state_shift.corrections: variants <correction>_<data>_w<width>
+OFFLINE_DATA = "offline"  # a correction student's data that is the pairing's collect dataset, not a composed one
 
 
 @dataclass(frozen=True)
@@ -176,7 +178,10 @@ class ShiftGrid:
     teacher acts in, the rest noisy or random; mop_core.compose), MSE students of every ``widths`` on
     each (5.2.4, Figure 5.8; the widest one the distill student's is 5.2.3's online-vs-offline
     comparison on the online dataset) and on ``data_percents``% of each task's offline dataset; and
-    the shift between every dataset and the teacher's visited states (``measure``: mop_core.shift).
+    the shift between every dataset and the teacher's visited states (``measure``: mop_core.shift);
+    and the students that correct for the shift (thesis 5.3, issue 18 part 6: ``corrections``,
+    reweight and the DAgger reference, on each of ``correction_datasets``, a composed dataset or
+    ``offline``, at each of ``correction_widths``; their settings: distill.reweight, distill.dagger).
     Empty lists train none. The data and measure settings are typed where they are used
     (mop_core.compose.compose_config, mop_core.shift_study.measure_config)."""
 
@@ -186,10 +191,14 @@ class ShiftGrid:
     episodes: int = 100
     noise_std: float = 1.0
     reference_episodes: int = 20
+    heldout_episodes: int = 10
     rollout_envs: int = 10
     workers: int = 2
     widths: tuple[int, ...] = ()
     data_percents: tuple[int, ...] = ()
+    corrections: tuple[str, ...] = ()
+    correction_datasets: tuple[str, ...] = ()
+    correction_widths: tuple[int, ...] = ()
     measure: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -203,6 +212,26 @@ class ShiftGrid:
         require(self.workers >= 1, "workers", "a positive integer", self.workers)
         require(not (self.widths and not self.datasets), "widths", "[] when no datasets are composed",
                 list(self.widths))
+        require(all(c in SHIFT_CORRECTIONS for c in self.corrections), "corrections",
+                f"a list of {list(SHIFT_CORRECTIONS)}", list(self.corrections))
+        require_unique(self.corrections, "corrections")
+        for i, name in enumerate(self.correction_datasets):
+            require(name == OFFLINE_DATA or name in self.datasets, f"correction_datasets[{i}]",
+                    f"{OFFLINE_DATA!r} (the pairing's collect dataset) or one of datasets {list(self.datasets)}", name)
+        require_unique(self.correction_datasets, "correction_datasets")
+        require(all(isinstance(w, int) and not isinstance(w, bool) and w >= 1 for w in self.correction_widths),
+                "correction_widths", "a list of positive integers", list(self.correction_widths))
+        require_unique(self.correction_widths, "correction_widths")
+        require(not self.corrections or (self.correction_datasets and self.correction_widths),
+                "corrections", "[] unless correction_datasets and correction_widths are set", list(self.corrections))
+        require(not any(n != OFFLINE_DATA for n in self.correction_datasets) or self.datasets,
+                "correction_datasets", "composed datasets only when datasets are composed",
+                list(self.correction_datasets))
+
+    @property
+    def trains_students(self) -> bool:
+        """Whether the section trains any student (composed, dataset share or correction)."""
+        return bool(self.datasets and self.widths or self.data_percents or self.corrections)
 
 
 def shift_grid(params: Mapping[str, Any], study: StudyConfig) -> ShiftGrid:
@@ -211,7 +240,7 @@ def shift_grid(params: Mapping[str, Any], study: StudyConfig) -> ShiftGrid:
     if "state_shift" not in params:
         return ShiftGrid()
     grid = from_mapping(ShiftGrid, section(params, "state_shift"), "state_shift")
-    if not (grid.datasets or grid.data_percents):
+    if not (grid.datasets or grid.data_percents or grid.corrections):
         return grid
     levels = pairing_levels(grid.pairing, study, "state_shift.pairing")
     pairings = [pairing_levels(str(p), study, "distill.pairings") for p in section(params, "distill").get(

@@ -24,7 +24,9 @@ teachers, states and seeds as the plain students, one setting changed; its files
 no-sharing reference the shared_computation stage measures the multi-task students against.
 ``--variant on_<dataset>_w<width>`` (distill_composed, thesis 5.2.4) trains them on a composed dataset of
 the teachers' rollouts (the compose stage), every hidden layer ``width`` wide; ``--variant data<percent>``
-(distill_size) on that share of each task's dataset's whole episodes (the state_shift section).
+(distill_size) on that share of each task's dataset's whole episodes (the state_shift section);
+``--variant <reweight|dagger>_<dataset>_w<width>`` (distill_corrected, thesis 5.3) on a composed or the
+offline dataset with that state-shift correction (mop_core.distill.corrections).
 
 ``--variant ds | oqs_own | oqs_target`` with ``--pairing <level>`` (the distill_sharing entries, thesis
 6.4, the data_sharing section) trains MSE students on the union of the tasks' datasets of that level:
@@ -122,6 +124,7 @@ def main() -> None:
     device = resolve_device(study.device, "study.device")
     require_inputs([t.paths.checkpoint for t in runs[0].all_teachers], "train_teachers")
     require_inputs(runs[0].datasets, "compose" if runs[0].composed else "collect")
+    require_inputs([*runs[0].heldout_datasets, *runs[0].reference_datasets], "compose")
     require_inputs([student_inputs_file(batch)], "student_inputs")
     check_student_files(runs, study.seed, lambda actor: teacher_config(params, study, actor),
                         student_inputs_file(batch))
@@ -131,7 +134,8 @@ def main() -> None:
     sources = StudentSources(first.tasks, tuple(t.paths.checkpoint for t in first.teachers), first.datasets,
                              first.state_datasets,
                              tuple(tuple(t.paths.checkpoint for t in per_task) for per_task in first.candidates),
-                             args.variant.split("_", 1)[1] if first.candidates else "own")
+                             args.variant.split("_", 1)[1] if first.candidates else "own",
+                             first.heldout_datasets, first.reference_datasets)
     group_paths = first.paths  # the group's resume file and timing record
     with keys_under("distill"):  # sizes checked against the states: distill.batch_size
         records = distill_students(sources, config, grid.schedule, study.episode_length, seeds, study.seed,

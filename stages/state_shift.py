@@ -4,12 +4,14 @@
 
 Per study task (mop_core.shift_study): the shift between the teacher's held-out visited states (the
 compose stage's reference episodes) and each dataset, the collect stage's levels and the composed
-ones (kNN KL with bootstrap interval and split-half null; classifier AUC and the density ratio's
+ones (kNN KL with an interval over random halves and split-half null; classifier AUC and the density ratio's
 effective sample share). Then the state_shift students' returns (their distill runs' final
 evaluations; n = distill.seeds training seeds per point): per composed dataset and width (Figure
 5.8), the online dataset against the offline one at the distill student's width (5.2.3, Figure 5.7)
 and per dataset share; the plain MOP students and the common_structure width students on the
-offline data are the reference rows.
+offline data are the reference rows. Every group's action errors (training, held-out, visited states:
+each run's metrics) and each correcting group's (reweight, dagger: thesis 5.3) return gain over the
+plain group of its data and width, paired by training seed.
 
 Outputs: results/state_shift/metrics.json, figures results/state_shift/figures/capacity.png (return
 against width per dataset), shift_returns.png (student/teacher return against the measured shift)
@@ -29,15 +31,15 @@ from mop_core.data import LEVELS, read_dataset, read_json, write_json
 from mop_core.eval_study import normalisers
 from mop_core.layout import COLLECT_METRICS, RESULTS, composed_file, dataset_file, timing_file
 from mop_core.plots import interval_panels
-from mop_core.runs import composed_parts, size_percent, width_variant
+from mop_core.runs import correction_parts, shift_data, size_percent, width_variant
 from mop_core.runtime import configure_compute, derive_seeds
-from mop_core.shift_study import measure_config, measure_shift, student_table
-from mop_core.study import distill_grid, pairing_levels, shift_grid, structure_grid, study_config
+from mop_core.shift_study import correction_table, measure_config, measure_shift, student_table
+from mop_core.study import OFFLINE_DATA, distill_grid, pairing_levels, shift_grid, structure_grid, study_config
 from mop_core.timings import write_timing
 
 OUT = RESULTS / "state_shift"
 FIGURES = OUT / "figures"  # a folder output: the figures a run's params produce (none without students)
-OFFLINE = "offline"  # the label of the collect stage's dataset of the pairing's level in the tables
+OFFLINE = OFFLINE_DATA  # the label of the collect stage's dataset of the pairing's level in the tables
 
 
 def main() -> None:
@@ -53,7 +55,7 @@ def main() -> None:
     for old in FIGURES.glob("*.png"):
         old.unlink()
     metrics: dict = {"pairing": grid.pairing, "measure": vars(measure).copy(), "shift": {}, "students": {}}
-    if not (grid.datasets or grid.data_percents):
+    if not grid.trains_students and not grid.datasets:
         write_json(OUT / "metrics.json", metrics)
         write_timing(timing_file("state_shift"), time.perf_counter() - started, "cpu")
         print("state_shift: no composed datasets or dataset shares in the state_shift section")
@@ -96,6 +98,7 @@ def main() -> None:
     metrics["normalisers"] = norms
     metrics["student_width"] = width
     metrics["groups"] = {label: describe(label, width) for label in table}
+    metrics["corrections"] = correction_table(records, metrics["groups"], study.tasks)
     metrics["hypothesis"] = shift_correlations(metrics, study.tasks)
     write_figures(metrics, study.tasks)
     write_json(OUT / "metrics.json", metrics)
@@ -105,13 +108,20 @@ def main() -> None:
 
 
 def describe(label: str, width: int) -> dict:
-    """What a table row is: its data (offline, a composed dataset), width and dataset share."""
+    """What a table row is: its data (offline, a composed dataset), width, dataset share and state-shift
+    correction (none, reweight, dagger)."""
+    correction = (correction_parts(label) or ("none",))[0]
     if label.startswith(f"{OFFLINE}_w"):
-        return {"data": OFFLINE, "width": int(label[len(OFFLINE) + 2:]), "percent": 100}
-    parts = composed_parts(label)
+        return {"data": OFFLINE, "width": int(label[len(OFFLINE) + 2:]), "percent": 100, "correction": correction}
+    parts = shift_data(label)
     if parts:
-        return {"data": parts[0], "width": parts[1], "percent": 100}
-    return {"data": OFFLINE, "width": width, "percent": size_percent(label)}
+        return {"data": parts[0], "width": parts[1], "percent": 100, "correction": correction}
+    return {"data": OFFLINE, "width": width, "percent": size_percent(label), "correction": correction}
+
+
+def plain(info: dict) -> bool:
+    """A row of students without a state-shift correction at the whole dataset (the figures' points)."""
+    return info["percent"] == 100 and info["correction"] == "none"
 
 
 def shift_points(metrics: dict, tasks) -> dict[int, dict[str, list[tuple[float, float]]]]:
@@ -119,7 +129,7 @@ def shift_points(metrics: dict, tasks) -> dict[int, dict[str, list[tuple[float, 
     every dataset (offline and composed), at full size."""
     points: dict[int, dict[str, list[tuple[float, float]]]] = {}
     for label, info in metrics["groups"].items():
-        if info["percent"] != 100:
+        if not plain(info):
             continue
         for task in tasks:
             data = info["data"] if info["data"] != OFFLINE else metrics["pairing_levels"][task]
@@ -152,7 +162,7 @@ def write_figures(metrics: dict, tasks) -> None:
     capacity: dict = {}
     shift: dict = {}
     for label, info in groups.items():
-        if info["percent"] != 100:
+        if not plain(info):
             continue
         for task in tasks:
             r = table[label][task]["return"]

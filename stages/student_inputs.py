@@ -22,8 +22,9 @@ def main() -> None:
     catalogue = build_catalogue(load_params())
     students = catalogue.students + catalogue.shift_students
     require_inputs(sorted({t.paths.checkpoint for run in students for t in run.teachers}), "train_teachers")
-    require_inputs(sorted({d for run in students if not run.composed for d in run.datasets}), "collect")
-    require_inputs(sorted({d for run in students if run.composed for d in run.datasets}), "compose")
+    files = {d for run in students for d in run.input_datasets}
+    require_inputs(sorted(d for d in files if d.parent.name != "composed"), "collect")
+    require_inputs(sorted(d for d in files if d.parent.name == "composed"), "compose")
     batches = catalogue.student_batches()
     for batch, runs in batches.items():
         write_json(student_inputs_file(batch), student_inputs(runs))

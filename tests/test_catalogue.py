@@ -320,7 +320,8 @@ def test_transfer_tasks_add_cross_task_jobs_only(tiny_params):
 def test_no_cross_task_jobs_without_deterministic_teachers(tiny_params):
     params = _with(tiny_params, train_teachers={"actors": ["gaussian"]}, distill={"losses": ["kl"]},
                    common_structure={"widths": [], "ranking_losses": [], "single_task": []},
-                   data_sharing={"levels": []}, state_shift={"datasets": [], "widths": [], "data_percents": []})
+                   data_sharing={"levels": []}, state_shift={"datasets": [], "widths": [], "data_percents": [],
+                                             "corrections": [], "correction_datasets": []})
     catalogue = build_catalogue(params)
     assert catalogue.cross_task_teachers() == []
     assert not [j for j in catalogue.eval_jobs() if is_cross_group(j.group)]

@@ -36,7 +36,7 @@ def _compose(config: ComposeConfig, seed: int = 0) -> tuple[dict, dict]:
 
 @pytest.fixture(scope="module")
 def composed():
-    config = ComposeConfig(episodes=4, noise_std=1.0, reference_episodes=2, rollout_envs=4,
+    config = ComposeConfig(episodes=4, noise_std=1.0, reference_episodes=2, heldout_episodes=4, rollout_envs=4,
                            compositions={"online": Composition(1.0), "noise": Composition(0.25, "noise"),
                                          "random90": Composition(0.25, "random"),
                                          "random99": Composition(0.01, "random")},
@@ -78,6 +78,20 @@ def test_the_reference_episodes_are_the_teachers_on_other_seeds(composed):
     assert summary[REFERENCE]["teacher_episodes"] == 2
 
 
+def test_each_dataset_has_held_out_episodes_of_its_composition_on_other_seeds(composed):
+    config, written, summary = composed
+    for name in config.datasets:
+        arrays, attrs = written[f"{name}_heldout"]
+        teacher = {"online": 4, "noise": 1, "random90": 1, "random99": 0}[name]  # 1% of 4: none (no floor of one)
+        assert len(arrays["rewards"]) == 4 * T and attrs["heldout"] == 1 and attrs["teacher_episodes"] == teacher
+        assert summary[f"{name}_heldout"]["rest_episodes"] == 4 - teacher
+        actions = arrays["actions"].reshape(4, T, 6)
+        assert (actions[:teacher] == 0.5).all() and not (actions[teacher:] == 0.5).any()
+        train = written[name][0]["observations"]  # not a single state in common with its training episodes
+        assert not (arrays["observations"][:, None, :] == train[None, :, :]).all(-1).any()
+    assert written["online"][1]["heldout"] == 0
+
+
 def test_composing_is_repeatable_and_seeded(composed):
     config, written, _ = composed
     again, _ = _compose(config)
@@ -88,7 +102,8 @@ def test_composing_is_repeatable_and_seeded(composed):
 
 
 def test_written_datasets_read_back_with_their_composition(tmp_path):
-    config = ComposeConfig(episodes=2, reference_episodes=2, rollout_envs=2, datasets=("online", "random99"))
+    config = ComposeConfig(episodes=2, reference_episodes=2, heldout_episodes=1, rollout_envs=2,
+                           datasets=("online", "random99"))
     attrs = {"task": "stand", "level": "medium", "seed": 0, "episode_length": T, "behaviour_sha256": "x"}
     compose_task(constant_policy, "stand", "medium", config, 0, T,
                  dataset_writer(lambda name: tmp_path / f"{name}.hdf5", attrs))
@@ -111,6 +126,8 @@ def test_the_thesis_compositions_and_pool_sizes():
     ({"compositions": {"online": {"teacher_share": 0.5, "rest": "zero"}}}, "compositions.online.rest: expected one of"),
     ({"reference_episodes": 1}, "reference_episodes: expected at least 2"),
     ({"episodes": 0}, "episodes: expected a positive integer"),
+    ({"heldout_episodes": 0}, "heldout_episodes: expected a positive integer"),
+    ({"datasets": ("x_heldout",), "compositions": {"x_heldout": Composition(1.0)}}, "datasets[0]: expected a name"),
 ])
 def test_bad_composition_settings_name_their_key(kwargs, message):
     if "compositions" in kwargs and "datasets" not in kwargs:

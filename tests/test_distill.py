@@ -476,8 +476,13 @@ def test_distill_rejects_a_teacher_of_the_wrong_kind_or_task(tiny_teachers, tmp_
     assert not (tmp_path / "student.pt").exists()
 
 
-def test_interrupted_distillation_resumes_to_the_same_student(tiny_teachers, tmp_path, monkeypatch):
-    config = DistillConfig(student=TINY, learning_rate=1e-3, batch_size=16)
+@pytest.mark.parametrize("correction", ["none", "dagger"])
+def test_interrupted_distillation_resumes_to_the_same_student(tiny_teachers, tmp_path, monkeypatch, correction):
+    from mop_core.distill.corrections import DaggerConfig
+
+    # dagger: its round at step 10, where the interrupted run's last resume file is written
+    config = DistillConfig(student=TINY, learning_rate=1e-3, batch_size=16, correction=correction,
+                           dagger=DaggerConfig(rounds=1, episodes=1))
     sources = _sources(tiny_teachers, "deterministic")
     distill_student(sources, config, SCHEDULE, 50, 0, 0, _paths(tmp_path / "a"))
     original, calls = Distiller.update, {"n": 0}
@@ -559,3 +564,88 @@ def test_data_sharing_students_learn_every_task_on_the_union(tiny_teachers, tmp_
     n = sum(len(read_dataset(d).arrays["observations"]) for d in (datasets["stand"], datasets["walk"]))
     assert [s["source"] for s in checkpoint["states"]] == ["offline_union"] * 2
     assert [s["states"] for s in checkpoint["states"]] == [n, n] and "q_switch" not in metrics
+
+
+# ---- state-shift corrections (thesis 5.3; issue 18 parts 5-6) ------------------------------------------
+def test_weighted_states_are_drawn_in_proportion_to_their_weight():
+    targets = _targets(1, gaussian=False, n=50)
+    weights = torch.zeros(50)
+    weights[[3, 7]] = torch.tensor([1.0, 3.0])
+    targets[0].weights = weights
+    distiller = Distiller(DistillConfig(student=TINY, batch_size=4000), [targets], 24, 6, [0])
+    rows = distiller._draw([0])[0][0]
+    assert set(rows.tolist()) == {3, 7}  # zero weight: never drawn
+    assert (rows == 7).float().mean().item() == pytest.approx(0.75, abs=0.03)
+
+
+def test_density_weights_favour_the_teachers_states_and_respect_the_clip():
+    from mop_core.distill.corrections import ReweightConfig, density_weights
+
+    rng = np.random.default_rng(0)
+    teacher = rng.normal(0.0, 1.0, (3000, 4)).astype(np.float32)
+    data = np.concatenate([rng.normal(0.0, 1.0, (300, 4)), rng.normal(4.0, 1.0, (2700, 4))]).astype(np.float32)
+    weights, info = density_weights(data, teacher, ReweightConfig(clip=5.0, states=3000, epochs=10), seed=1)
+    assert weights.shape == (3000,) and weights.max() <= 5.0 and (weights >= 0).all()
+    assert weights[:300].mean() > 20 * weights[300:].mean()  # the teacher-like 10% carry the weight
+    assert info["reweight_auc"] > 0.9 and 0 < info["reweight_clipped_share"] < 1
+    assert info["reweight_ess_unclipped"] < info["reweight_ess"] < 1  # clipping spreads the weight
+
+
+def test_dagger_rounds_are_evenly_spaced():
+    from mop_core.distill.corrections import DaggerConfig
+
+    assert DaggerConfig(rounds=3).round_starts(5000) == {1250: 1, 2500: 2, 3750: 3}
+    assert DaggerConfig(rounds=1).round_starts(20) == {10: 1}
+    with pytest.raises(ConfigError, match="rounds: expected a positive integer"):
+        DaggerConfig(rounds=0)
+
+
+def test_aggregated_states_join_training_and_survive_a_resume():
+    targets = _targets(2, gaussian=False, n=32)
+    distiller = Distiller(DistillConfig(student=TINY, batch_size=8), [targets], 24, 6, [0])
+    new = torch.randn(5, 24)
+    distiller.aggregate(0, 1, new, torch.zeros(5, 6))
+    assert len(distiller.targets[0][1]) == 37 and len(distiller.targets[0][0]) == 32
+    assert torch.equal(distiller.targets[0][1].states[32:], new) and len(distiller.base[0][1]) == 32
+    distiller.update()
+    state = distiller.state_dict()
+    fresh = Distiller(DistillConfig(student=TINY, batch_size=8), [targets], 24, 6, [0])  # the states before it
+    fresh.load_state_dict(state)
+    assert len(fresh.targets[0][1]) == 37 and torch.equal(fresh.targets[0][1].states, distiller.targets[0][1].states)
+    assert fresh.targets[0][1].source["aggregated_states"] == 5
+    assert all(torch.equal(a, b) for a, b in zip(fresh.update().values(), distiller.update().values())
+               if isinstance(a, torch.Tensor))
+
+
+@pytest.mark.parametrize("correction", ["reweight", "dagger"])
+def test_corrected_distillation_runs_and_records_its_correction_and_errors(tiny_teachers, tmp_path, correction):
+    from mop_core.distill.corrections import DaggerConfig, ReweightConfig
+
+    sources = _sources(tiny_teachers, "deterministic")
+    # the teacher's states: its own dataset (any states serve the ratio here); held out: the other task's data
+    sources = StudentSources(sources.tasks, sources.teachers, sources.datasets, heldout=sources.datasets[::-1],
+                             references=sources.datasets)
+    config = DistillConfig(student=TINY, learning_rate=1e-3, batch_size=16, correction=correction,
+                           reweight=ReweightConfig(states=100, epochs=2), dagger=DaggerConfig(rounds=1, episodes=1))
+    metrics = distill_students(sources, config, SCHEDULE, 50, [0, 1], 0, [_paths(tmp_path / "a"),
+                                                                            _paths(tmp_path / "b")],
+                               tmp_path / "resume.pt", None)
+    for record in metrics:
+        for task in ("stand", "walk"):
+            errors = record[task]["action_mse"]
+            assert set(errors) == {"train", "heldout", "visited"} and all(v >= 0 for v in errors.values())
+            assert ("reweight" in record[task]) == (correction == "reweight")
+        if correction == "dagger":  # one round of one 50-step episode per task, each run its own
+            assert record["dagger"]["aggregated_states"] == {"stand": 50, "walk": 50}
+    again = distill_students(sources, config, SCHEDULE, 50, [0, 1], 0, [_paths(tmp_path / "c"),
+                                                                         _paths(tmp_path / "d")],
+                             tmp_path / "resume2.pt", None)
+    assert [m["stand"]["action_mse"] for m in again] == [m["stand"]["action_mse"] for m in metrics]  # repeatable
+
+
+def test_reweighting_needs_reference_states(tiny_teachers, tmp_path):
+    config = DistillConfig(student=TINY, batch_size=16, correction="reweight")
+    with pytest.raises(ConfigError, match="correction: expected reweight only with the teachers' reference"):
+        distill_student(_sources(tiny_teachers, "deterministic"), config, SCHEDULE, 50, 0, 0, _paths(tmp_path))
+    with pytest.raises(ConfigError, match="correction: expected not reweight unless state_source is offline"):
+        DistillConfig(correction="reweight", state_source="online", num_states=10)

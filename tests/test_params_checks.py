@@ -102,8 +102,8 @@ def test_sizes_are_bounded_by_the_data_the_study_will_have(tiny_params):
         check_params(_set(_set(tiny_params, "distill.num_states", 40), "distill.batch_size", 41))
     with pytest.raises(ConfigError, match=r"^collect.td3.batch_size: expected at most the 400 transitions"):
         check_params(_set(tiny_params, "collect.td3.batch_size", 10**9))
-    no_shift = _set(_set(_set(tiny_params, "state_shift.datasets", []), "state_shift.widths", []),
-                    "state_shift.data_percents", [])
+    no_shift = _set(_set(_set(_set(tiny_params, "state_shift.datasets", []), "state_shift.widths", []),
+                         "state_shift.data_percents", []), "state_shift.correction_datasets", ["offline"])
     check_params(_set(no_shift, "distill.batch_size", 150))  # the bound itself is allowed
 
 
@@ -111,14 +111,15 @@ def test_shift_students_batches_are_bounded_by_their_data(tiny_params):
     # tiny: composed datasets of 2 episodes x 50 steps; 50% of the 3 medium episodes is 2 episodes
     with pytest.raises(ConfigError, match=r"^distill.batch_size: expected at most the 100 states of a composed"):
         check_params(_set(tiny_params, "distill.batch_size", 101))
-    only_sizes = _set(_set(tiny_params, "state_shift.datasets", []), "state_shift.widths", [])
+    only_sizes = _set(_set(_set(tiny_params, "state_shift.datasets", []), "state_shift.widths", []),
+                      "state_shift.correction_datasets", ["offline"])
     with pytest.raises(ConfigError, match=r"^distill.batch_size: expected at most the 100 states of 50% of the "):
         check_params(_set(only_sizes, "distill.batch_size", 101))
     check_params(_set(tiny_params, "distill.batch_size", 100))
 
 
 SHIFT_ERRORS = [
-    ("state_shift.datasets", ["online", "nosie"], "state_shift.datasets[1]: expected one of compositions"),
+    ("state_shift.datasets", ["random99", "nosie"], "state_shift.datasets[1]: expected one of compositions"),
     ("state_shift.datasets", ["online", "online"], "state_shift.datasets: expected a list without repeats"),
     ("state_shift.compositions.noise.rest", "uniform", "state_shift.compositions.noise.rest: expected one of noise"),
     ("state_shift.compositions.noise.teacher_share", 0.0, "state_shift.compositions.noise.teacher_share: expected"),
@@ -128,6 +129,13 @@ SHIFT_ERRORS = [
     ("state_shift.reference_episodes", 1, "state_shift.reference_episodes: expected at least 2"),
     ("state_shift.measure.k", 60, "state_shift.measure.k: expected in [1, states / 2)"),
     ("state_shift.measure.statez", 60, "state_shift.measure.statez: unknown parameter"),
+    ("state_shift.heldout_episodes", 0, "state_shift.heldout_episodes: expected a positive integer"),
+    ("state_shift.corrections", ["reweight", "dagger", "reweigh"], "state_shift.corrections: expected a list of"),
+    ("state_shift.correction_datasets", ["noise"], "state_shift.correction_datasets[0]: expected 'offline' (the "),
+    ("state_shift.correction_widths", [], "state_shift.corrections: expected [] unless correction_datasets and"),
+    ("distill.reweight.clip", 0.5, "distill.reweight.clip: expected a number >= 1"),
+    ("distill.dagger.rounds", 0, "distill.dagger.rounds: expected a positive integer"),
+    ("distill.correction", "dagger", "distill.correction: set the state_shift corrections instead"),
 ]
 
 

@@ -130,12 +130,23 @@ def test_repro_composes_datasets_measures_their_shift_and_trains_students_on_the
         assert (random99.arrays["observations"][:50] == online.arrays["observations"][:50]).all()
         assert not (random99.arrays["actions"][50:] == online.arrays["actions"][50:]).all()
         assert (repo / "data" / "composed" / f"{task}-medium-reference.hdf5").is_file()
+        heldout = read_dataset(repo / "data" / "composed" / f"{task}-medium-random99_heldout.hdf5")
+        assert len(heldout) == 50 and heldout.attrs["heldout"] == 1 and heldout.attrs["teacher_episodes"] == 0
     metrics = json.loads((repo / "results" / "state_shift" / "metrics.json").read_text())
     for task in ("stand", "walk"):
         assert set(metrics["shift"][task]) == {"reference", "expert", "medium", "medium_replay", "online", "random99"}
         assert 0 <= metrics["shift"][task]["random99"]["auc"] <= 1
-    assert set(metrics["students"]) == {"offline_w16", "offline_w8", "on_online_w8", "on_random99_w8", "data50"}
+    assert set(metrics["students"]) == {"offline_w16", "offline_w8", "on_online_w8", "on_random99_w8", "data50",
+                                        "reweight_random99_w8", "dagger_random99_w8"}
     assert metrics["students"]["data50"]["stand"]["return"]["n"] == 1  # the tiny profile's one seed
+    # part 5: every student's action error on its training states and visited states; held-out where it has some
+    assert set(metrics["students"]["data50"]["walk"]["action_mse"]) == {"train", "heldout", "visited"}
+    assert set(metrics["students"]["offline_w8"]["walk"]["action_mse"]) == {"train", "visited"}
+    assert set(metrics["students"]["dagger_random99_w8"]["walk"]["action_mse"]) == {"train", "heldout", "visited"}
+    # part 6: the correcting students against the plain ones on the same data and width
+    assert {c: metrics["corrections"][f"{c}_random99_w8"]["plain"] for c in ("reweight", "dagger")} == {
+        "reweight": "on_random99_w8", "dagger": "on_random99_w8"}
+    assert metrics["corrections"]["reweight_random99_w8"]["stand"]["reweight"]["reweight_ess"] > 0
     students = repo / "data" / "students"
     checkpoint = torch.load(students / "mse-on_random99_w8-medium" / "mse-on_random99_w8-medium-0.pt",
                             weights_only=False)
@@ -146,6 +157,11 @@ def test_repro_composes_datasets_measures_their_shift_and_trains_students_on_the
     report = (repo / "results" / "report.md").read_text()
     assert "## 5b. State distribution shift (thesis 5.2)" in report and "| stand | random99 |" in report
     assert "### Dataset size" in report and "| 50% |" in report
+    assert "### Where the students go wrong" in report and "### Correcting the shift" in report
+    dagger = torch.load(students / "mse-dagger_random99_w8-medium" / "mse-dagger_random99_w8-medium-0.pt",
+                        weights_only=False)
+    assert dagger["distill_config"]["correction"] == "dagger" and dagger["metrics"]["dagger"]["aggregated_states"] == {
+        "stand": 50, "walk": 50}  # the tiny profile's one round of one 50-step episode per task
 
 
 def test_repro_produces_datasets_teachers_and_metrics(repo):
@@ -237,6 +253,7 @@ EXP_PUSH = "dvc exp push origin"
 RUN_CACHE_REPRODUCE = "dvc exp run --pull -S distill.learning_rate=0.003 -S distill.lr_schedule=cosine"
 # the queued experiment's smaller grid (no state-shift or single-task students: the suite's time)
 SMALLER_GRID = ("-S", "state_shift.datasets=[]", "-S", "state_shift.widths=[]", "-S", "state_shift.data_percents=[]",
+                "-S", "state_shift.corrections=[]", "-S", "state_shift.correction_datasets=[]",
                 "-S", "common_structure.single_task=[]")
 
 
@@ -254,7 +271,7 @@ def test_the_readme_shows_the_tested_commands():
 def test_metrics_show_holds_the_headline_numbers_and_the_timings_apart(repo):
     shown = json.loads(_run(["dvc", "metrics", "show", "--json"], repo).stdout)[""]["data"]
     assert all(path == "results/metrics.json" or path.startswith("results/timings/") for path in shown), shown
-    assert len([path for path in shown if path.startswith("results/timings/")]) == 26  # one per stage entry
+    assert len([path for path in shown if path.startswith("results/timings/")]) == 28  # one per stage entry
     headline = shown["results/metrics.json"]["data"]
     assert headline == json.loads((repo / "results" / "metrics.json").read_text())
     evaluation = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
@@ -272,7 +289,7 @@ def test_metrics_show_holds_the_headline_numbers_and_the_timings_apart(repo):
     rows = [line for line in table.splitlines() if line.strip()]
     assert "normalised_return.student_mse_medium.stand" in table and len(rows) == 3  # header, rule, one row
     timings = _run(_command(TIMINGS_SHOW, "--md"), repo).stdout
-    assert timings.count("results/timings/") == 26 and "normalised_return" not in timings
+    assert timings.count("results/timings/") == 28 and "normalised_return" not in timings
 
 
 def test_every_plot_renders_and_only_the_current_runs_are_drawn(repo):
@@ -417,7 +434,9 @@ def test_exp_run_of_distill_param_reruns_only_distill_and_what_reads_students(re
                                 "distill_sharing@medium-oqs_own", "distill_sharing@medium-oqs_target",
                                 "distill_substitute@stand_still-medium-mop",
                                 "distill_substitute@stand_still-medium-oqs_own", "distill_composed@online-8",
-                                "distill_composed@random99-8", "distill_size@50", "state_shift", "eval",
+                                "distill_composed@random99-8", "distill_size@50",
+                                "distill_corrected@reweight-random99-8", "distill_corrected@dagger-random99-8",
+                                "state_shift", "eval",
                                 "shared_computation", "report"}
     metrics = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
     assert "student_mse_medium" in metrics["stand"]

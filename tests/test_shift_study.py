@@ -5,6 +5,7 @@ mop_core/distill/variants.py, mop_core/catalogue.py)."""
 from __future__ import annotations
 
 import copy
+import json
 
 import numpy as np
 import pytest
@@ -14,8 +15,16 @@ from mop_core.distill.distiller import distill_config
 from mop_core.distill.variants import variant_config
 from mop_core.layout import composed_file, dataset_file
 from mop_core.report_shift import shift_section
-from mop_core.runs import composed_parts, composed_variant, size_percent, size_variant
-from mop_core.shift_study import MeasureConfig, effective_share, measure_shift, student_table
+from mop_core.runs import (
+    composed_parts,
+    composed_variant,
+    correction_parts,
+    correction_variant,
+    shift_data,
+    size_percent,
+    size_variant,
+)
+from mop_core.shift_study import MeasureConfig, correction_table, effective_share, measure_shift, student_table
 
 CONFIG = MeasureConfig(states=1000, k=3, bootstrap=4, classifier_epochs=5, threads=1)
 
@@ -76,23 +85,46 @@ def test_variant_names_round_trip_and_change_one_setting(tiny_params):
     wide = variant_config(base, composed_variant("noise", 32))
     assert wide.student.hidden_sizes == (32, 32) and wide.data_fraction == 1
     assert variant_config(base, size_variant(30)).data_fraction == pytest.approx(0.3)
+    assert correction_parts(correction_variant("reweight", "random90", 64)) == ("reweight", "random90", 64)
+    assert correction_parts("on_random90_w64") is None and correction_parts("reweighted_x_w1") is None
+    assert shift_data(correction_variant("dagger", "offline", 8)) == ("offline", 8)
+    corrected = variant_config(base, correction_variant("dagger", "noise", 32))
+    assert corrected.correction == "dagger" and corrected.student.hidden_sizes == (32, 32)
+    assert variant_config(base, correction_variant("reweight", "offline", 16)).correction == "reweight"
+    assert wide.correction == "none"
 
 
 def test_the_shift_students_are_in_their_own_batches_and_not_eval_jobs(tiny_params):
     catalogue = build_catalogue(tiny_params)
     names = [run.name for run in catalogue.shift_students]
-    assert names == ["mse-on_online_w8-medium-0", "mse-on_random99_w8-medium-0", "mse-data50-medium-0"]
+    assert names == ["mse-on_online_w8-medium-0", "mse-on_random99_w8-medium-0", "mse-data50-medium-0",
+                     "mse-reweight_random99_w8-medium-0", "mse-dagger_random99_w8-medium-0"]
     composed = catalogue.shift_students[1]
-    assert composed.composed == "random99"
+    assert composed.composed == "random99" and composed.correction == ""
     assert composed.datasets == tuple(composed_file(task, "medium", "random99") for task in ("stand", "walk"))
+    assert composed.heldout_datasets == tuple(composed_file(task, "medium", "random99_heldout")
+                                              for task in ("stand", "walk"))
+    assert composed.reference_datasets == ()
     assert catalogue.shift_students[2].datasets == (dataset_file("stand", "medium"), dataset_file("walk", "medium"))
+    assert catalogue.shift_students[2].heldout_datasets == ()  # a dataset share's held-out: the rest of the data
+    reweight, dagger = catalogue.shift_students[3:]
+    assert (reweight.correction, reweight.composed, dagger.correction) == ("reweight", "random99", "dagger")
+    assert reweight.reference_datasets == tuple(composed_file(task, "medium", "reference")
+                                                for task in ("stand", "walk"))
+    assert dagger.reference_datasets == () and dagger.heldout_datasets == composed.heldout_datasets
+    assert set(reweight.input_datasets) == {*reweight.datasets, *reweight.heldout_datasets,
+                                            *reweight.reference_datasets}
     assert {run.batch for run in catalogue.shift_students} <= set(catalogue.student_batches())
     jobs = {job.checkpoint for job in catalogue.eval_jobs()}
     assert not {run.paths.checkpoint for run in catalogue.shift_students} & jobs
     assert not set(catalogue.shift_students) & set(catalogue.students)  # eval, shared_computation: not theirs
     params = copy.deepcopy(tiny_params)
-    params["state_shift"].update(datasets=[], widths=[], data_percents=[])
+    params["state_shift"].update(datasets=[], widths=[], data_percents=[], corrections=[], correction_datasets=[])
     assert build_catalogue(params).shift_students == ()
+    params["state_shift"].update(corrections=["dagger"], correction_datasets=["offline"])
+    (offline,) = build_catalogue(params).shift_students
+    assert offline.variant == "dagger_offline_w8" and offline.composed == "" and offline.heldout_datasets == ()
+    assert offline.datasets == (dataset_file("stand", "medium"), dataset_file("walk", "medium"))
 
 
 METRICS = {
@@ -133,3 +165,52 @@ def test_the_report_section_shows_every_measured_table():
 
 def test_the_report_says_when_the_state_shift_study_did_not_run():
     assert "Not part of this run" in shift_section(None, None, ("stand", "walk"), "state_shift/")
+
+
+def _seeded(seed: int, stand: float, walk: float, errors: float) -> dict:
+    record = _record(seed, stand, walk)
+    for task in ("stand", "walk"):
+        record[task]["action_mse"] = {"train": errors, "heldout": 2 * errors, "visited": 10 * errors}
+    return record
+
+
+def test_correction_gains_are_paired_by_seed_against_the_plain_students_of_the_same_data():
+    records = {"on_random90_w256": [_seeded(s, 300 + 10 * s, 200, 0.1) for s in range(3)],
+               "reweight_random90_w256": [_seeded(s, 330 + 10 * s, 190 + s, 0.1) for s in range(3)],
+               "dagger_random90_w16": [_seeded(s, 400, 400, 0.1) for s in range(3)]}  # no plain w16: no row
+    groups = {"on_random90_w256": {"data": "random90", "width": 256, "percent": 100, "correction": "none"},
+              "reweight_random90_w256": {"data": "random90", "width": 256, "percent": 100, "correction": "reweight"},
+              "dagger_random90_w16": {"data": "random90", "width": 16, "percent": 100, "correction": "dagger"}}
+    table = correction_table(records, groups, ("stand", "walk"))
+    assert list(table) == ["reweight_random90_w256"] and table["reweight_random90_w256"]["plain"] == "on_random90_w256"
+    stand, walk = table["reweight_random90_w256"]["stand"]["gain"], table["reweight_random90_w256"]["walk"]["gain"]
+    assert stand["mean"] == pytest.approx(30) and stand["ci_low"] == pytest.approx(30)  # the same gain every seed
+    assert walk["mean"] == pytest.approx(-9) and walk["n"] == 3
+    norms = {t: {"random_return": 0.0, "expert_return": 1000.0} for t in ("stand", "walk")}
+    errors = student_table(records, ("stand", "walk"), norms)["on_random90_w256"]["stand"]["action_mse"]
+    assert errors["visited"]["mean"] == pytest.approx(1.0) and errors["heldout"]["n"] == 3
+
+
+def test_the_report_shows_action_errors_and_corrections():
+    metrics = json.loads(json.dumps(METRICS))
+    metrics["groups"]["reweight_online_w256"] = {"data": "online", "width": 256, "percent": 100,
+                                                 "correction": "reweight"}
+    metrics["students"]["reweight_online_w256"] = metrics["students"]["on_online_w256"]
+    for row in metrics["students"].values():
+        for task in ("stand", "walk"):
+            row[task]["action_mse"] = {"train": {"mean": 0.1, "ci_low": 0.05, "ci_high": 0.15, "n": 3},
+                                       "visited": {"mean": 0.9, "ci_low": 0.5, "ci_high": 1.3, "n": 3}}
+    gain = {"mean": 12.0, "ci_low": 2.0, "ci_high": 22.0, "n": 3}
+    weights = {"reweight_auc": 0.9, "reweight_ess_unclipped": 0.05, "reweight_ess": 0.3, "reweight_clipped_share": 0.02}
+    metrics["corrections"] = {"reweight_online_w256": {
+        "plain": "on_online_w256", "correction": "reweight", "data": "online", "width": 256, "seeds": [0, 1, 2],
+        **{t: {"gain": gain, "to_teacher_gain": gain, "reweight": weights} for t in ("stand", "walk")}}}
+    text = shift_section(metrics, None, ("stand", "walk"), "state_shift/")
+    assert "### Where the students go wrong (issue 18 part 5)" in text
+    assert "| online, width 256 | stand | 0.100 [0.050, 0.150] | - | 0.900 [0.500, 1.300] |" in text
+    assert "### Correcting the shift: reweighting and DAgger" in text
+    assert "| online, width 256, reweight | 450.0 [440.0, 460.0] (0.90) | 451.0 [441.0, 461.0] (0.90) | " \
+           "12.0 [2.0, 22.0] | 12.0 [2.0, 22.0] |" in text
+    assert "effective sample share 0.050 unclipped, 0.300 clipped (2.0% of states at the clip)" in text
+    # the correcting students stay out of the plain tables (Figure 5.7's rows: the offline and online students)
+    assert text.count("| online | 450.0") == 1

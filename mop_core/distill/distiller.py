@@ -15,6 +15,7 @@ frozen).
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
@@ -23,6 +24,7 @@ import torch
 
 from mop_core.config import ConfigError, from_mapping, require
 from mop_core.conflict import flat_gradient, pairwise_cosines
+from mop_core.distill.corrections import CORRECTIONS, DaggerConfig, ReweightConfig
 from mop_core.distill.losses import LOSSES, Q_REDUCTIONS, LossInputs, mse_per_state
 from mop_core.distill.states import STATE_SOURCES, TaskStates
 from mop_core.distill.student import Student, StudentConfig, StudentGroup
@@ -96,6 +98,9 @@ class DistillConfig:
     #                                the student visits in each evaluation (the reference code's choice)
     step_per_task: bool = False  # one Adam step per task per update (reference code) instead of one over all tasks
     ranking: RankingConfig = field(default_factory=RankingConfig)  # thesis 6.3.2 regulariser (loss none: off)
+    correction: str = "none"  # none | reweight | dagger: a state-shift correction (mop_core.distill.corrections)
+    reweight: ReweightConfig = field(default_factory=ReweightConfig)  # correction reweight's ratio and clip
+    dagger: DaggerConfig = field(default_factory=DaggerConfig)  # correction dagger's rounds
 
     def __post_init__(self) -> None:
         require(self.loss in LOSSES, "loss", f"one of {tuple(LOSSES)}", self.loss)
@@ -115,6 +120,9 @@ class DistillConfig:
                 self.data_fraction)
         require(self.data_fraction == 1 or self.state_source == "offline", "data_fraction",
                 "1 unless state_source is offline", self.data_fraction)
+        require(self.correction in CORRECTIONS, "correction", f"one of {CORRECTIONS}", self.correction)
+        require(self.correction != "reweight" or self.state_source == "offline", "correction",
+                "not reweight unless state_source is offline (it reweights dataset states)", self.correction)
         hidden = len(self.student.hidden_sizes)
         require(len(self.ranking.layer_weights) in (0, hidden), "ranking.layer_weights",
                 f"one weight per hidden layer of the student ({hidden}) or [] (1 each)",
@@ -128,7 +136,19 @@ def distill_config(params: Mapping[str, Any], loss: str) -> DistillConfig:
     raw = {k: v for k, v in section(params, "distill").items() if k not in DISTILL_GRID_KEYS}
     if "loss" in raw:
         raise ConfigError("distill.loss: set the losses in distill.losses instead")
+    if "correction" in raw:  # a student variant's setting, not the study's (its correction students set it)
+        raise ConfigError("distill.correction: set the state_shift corrections instead (state_shift.corrections)")
     return from_mapping(DistillConfig, raw | {"loss": loss}, "distill")
+
+
+def _cumulative(weights: torch.Tensor | None) -> torch.Tensor | None:
+    """The normalised cumulative sum of sampling weights (float64), None for uniform sampling."""
+    if weights is None:
+        return None
+    if (weights < 0).any() or not weights.sum() > 0:
+        raise ValueError("weights: expected non-negative sampling weights with a positive sum")
+    cdf = torch.cumsum(weights.double(), 0)
+    return cdf / cdf[-1]
 
 
 class Distiller:
@@ -148,6 +168,9 @@ class Distiller:
         if len(targets) != len(seeds) or not seeds:
             raise ValueError(f"targets: expected one list of task states per seed ({len(seeds)}), got {len(targets)}")
         self.config, self.device, self.targets = config, torch.device(device), [list(t) for t in targets]
+        self.base = [list(t) for t in targets]  # the states before any aggregation (DAgger)
+        self.added: list[list[list | None]] = [[None] * len(t) for t in targets]
+        self.cdfs = [[_cumulative(t.weights) for t in run] for run in self.targets]  # sampling weights' CDFs
         self.total_steps = total_steps  # the length of the learning-rate schedule
         self.tasks = [t.task for t in self.targets[0]]
         if any([t.task for t in run] != self.tasks for run in self.targets):
@@ -180,8 +203,34 @@ class Distiller:
         return self.group.member(run)
 
     def _rows(self, run: int, task: int, batch_size: int) -> torch.Tensor:
+        cdf = self.cdfs[run][task]
+        if cdf is not None:  # reweighted distillation: rows drawn in proportion to their weight (inverse CDF:
+            #                  7x faster than torch.multinomial over 100k rows; a zero-weight row is never drawn)
+            u = torch.rand(batch_size, generator=self.generators[run], device=self.device, dtype=torch.float64)
+            return torch.searchsorted(cdf, u, right=True).clamp_max(len(cdf) - 1)
         return torch.randint(len(self.targets[run][task]), (batch_size,), generator=self.generators[run],
                              device=self.device)
+
+    def aggregate(self, run: int, task: int, states: torch.Tensor, teacher_actions: torch.Tensor,
+                  teacher_std: torch.Tensor | None = None) -> None:
+        """Add labelled states to run ``run``'s states of task ``task`` (DAgger's aggregation: the
+        states its student visited, labelled by the frozen teacher); kept in the resume state."""
+        added = self.added[run][task]
+        parts = [torch.as_tensor(x, dtype=torch.float32, device=self.device) if x is not None else None
+                 for x in (states, teacher_actions, teacher_std)]
+        self.added[run][task] = parts if added is None else [
+            None if old is None else torch.cat([old, new]) for old, new in zip(added, parts)]
+        self._apply_added(run, task)
+
+    def _apply_added(self, run: int, task: int) -> None:
+        base, added = self.base[run][task], self.added[run][task]
+        if base.weights is not None:
+            raise ValueError("aggregate: reweighted states cannot grow (their weights are the dataset's)")
+        std = None if base.teacher_std is None else torch.cat([base.teacher_std, added[2]])
+        self.targets[run][task] = dataclasses.replace(
+            base, states=torch.cat([base.states, added[0]]), teacher_actions=torch.cat([base.teacher_actions,
+                                                                                         added[1]]),
+            teacher_std=std, source=base.source | {"aggregated_states": len(added[0])})
 
     def loss(self, rows: Sequence[Sequence[torch.Tensor]], tasks: Sequence[int] | None = None,
              regularise: bool = True) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
@@ -282,7 +331,8 @@ class Distiller:
 
     def state_dict(self) -> dict:
         return copy.deepcopy({"group": self.group.state_dict(), "optimizer": self.optimizer.state_dict(),
-                              "generators": [g.get_state() for g in self.generators], "updates": self.updates})
+                              "generators": [g.get_state() for g in self.generators], "updates": self.updates,
+                              "added": self.added})
 
     def load_state_dict(self, state: dict) -> None:
         self.group.load_state_dict(state["group"])
@@ -290,3 +340,10 @@ class Distiller:
         for generator, saved in zip(self.generators, state["generators"], strict=True):
             generator.set_state(saved)
         self.updates = state["updates"]
+        self.added = state.get("added") or [[None] * len(t) for t in self.targets]
+        for run, per_task in enumerate(self.added):
+            for task, added in enumerate(per_task):
+                if added is None:
+                    self.targets[run][task] = self.base[run][task]
+                else:
+                    self._apply_added(run, task)

@@ -21,9 +21,18 @@ from mop_core.artifacts import load_checkpoint, state_sha256, write_curve
 from mop_core.catalogue import check_student_inputs
 from mop_core.config import from_mapping, require, to_dict
 from mop_core.data import read_dataset_attrs, read_json
+from mop_core.distill.corrections import density_weights
 from mop_core.distill.distiller import DistillConfig, Distiller
-from mop_core.distill.losses import LOSSES
-from mop_core.distill.states import TaskStates, offline_states, online_states, q_switch_states, task_states
+from mop_core.distill.losses import LOSSES, mse_per_state
+from mop_core.distill.states import (
+    TaskStates,
+    offline_split,
+    offline_states,
+    online_states,
+    q_switch_states,
+    task_states,
+    teacher_outputs,
+)
 from mop_core.distill.student import Student
 from mop_core.envs import ACT_DIM, OBS_DIM
 from mop_core.nn import numpy_policy, with_task_id
@@ -57,6 +66,9 @@ class StudentSources:
     state_datasets: tuple[Path, ...] = ()  # the union every task's states come from; () = datasets[i] each
     candidates: tuple[tuple[Path, ...], ...] = ()  # OQS: per task, a checkpoint per source task j
     judge: str = "own"  # OQS: own | target
+    heldout: tuple[Path, ...] = ()  # per task, held-out episodes of its data (the action error off the training
+    #                                 states); () = none (a dataset share's held-out states: the rest of the dataset)
+    references: tuple[Path, ...] = ()  # reweighted distillation: per task, the teacher's visited states
 
     def __post_init__(self) -> None:
         check_task_list(self.tasks, "tasks")
@@ -65,6 +77,10 @@ class StudentSources:
                 raise ValueError(f"{name}: expected one per task ({len(self.tasks)}), got {len(getattr(self, name))}")
         if self.candidates and len(self.candidates) != len(self.tasks):
             raise ValueError(f"candidates: expected one list per task ({len(self.tasks)}), got {len(self.candidates)}")
+        for name in ("heldout", "references"):
+            if getattr(self, name) and len(getattr(self, name)) != len(self.tasks):
+                raise ValueError(f"{name}: expected one per task ({len(self.tasks)}) or none, got "
+                                 f"{len(getattr(self, name))}")
         if self.judge not in Q_SWITCH_JUDGES:
             raise ValueError(f"judge: expected one of {Q_SWITCH_JUDGES}, got {self.judge!r}")
 
@@ -119,15 +135,18 @@ def build_states(sources: StudentSources, teachers: Sequence[Teacher], config: D
                 "union)", config.data_fraction)
         shared = union_states(sources.state_datasets, config.num_states,
                               np.random.default_rng(derive_seeds([seed, "union"], ("subset",))["subset"]))
+    require(config.correction != "reweight" or len(sources.references) == len(sources.tasks), "correction",
+            "reweight only with the teachers' reference states (StudentSources.references)", config.correction)
     for i, (task, teacher, dataset) in enumerate(zip(sources.tasks, teachers, sources.datasets)):
-        task_seeds = derive_seeds([seed, task], ("subset", "episodes"))
+        task_seeds = derive_seeds([seed, task], ("subset", "episodes", "reweight"))
+        heldout = None
         if shared is not None:
             states = shared
             source = {"source": "offline_union", "datasets": [str(d) for d in sources.state_datasets],
                       "states": len(states)}
         elif config.state_source == "offline":
-            states = offline_states(dataset, config.num_states, np.random.default_rng(task_seeds["subset"]),
-                                    config.data_fraction)
+            states, heldout = offline_split(dataset, config.num_states, np.random.default_rng(task_seeds["subset"]),
+                                            config.data_fraction)
             source = {"source": "offline", "dataset": str(dataset), "states": len(states)}
             if config.data_fraction < 1:
                 source["data_fraction"] = config.data_fraction
@@ -138,11 +157,24 @@ def build_states(sources: StudentSources, teachers: Sequence[Teacher], config: D
             source = {"source": "online", "episodes": episodes, "first_seed": seeds[0], "states": len(states)}
         require(config.batch_size <= len(states), "batch_size",
                 f"at most the {len(states)} states of {task} ({source.get('dataset', 'online')})", config.batch_size)
+        weights = None
+        if config.correction == "reweight":
+            reference = offline_states(sources.references[i], 0, np.random.default_rng(0))
+            weights, info = density_weights(states, reference, config.reweight, task_seeds["reweight"])
+            source |= {"reference": str(sources.references[i])} | info
+        if sources.heldout:
+            heldout = offline_states(sources.heldout[i], 0, np.random.default_rng(0))
+            source["heldout"] = str(sources.heldout[i])
         if candidates:
             judges = candidates[i] if sources.judge == "own" else [teacher] * len(candidates[i])
-            result.append(q_switch_states(task, states, candidates[i], judges, config.q_reduction, source, device))
+            states_i = q_switch_states(task, states, candidates[i], judges, config.q_reduction, source, device)
         else:
-            result.append(task_states(task, states, teacher.actor, source, device))
+            states_i = task_states(task, states, teacher.actor, source, device)
+        if weights is not None:
+            states_i.weights = torch.as_tensor(weights, dtype=torch.float32, device=device)
+        if heldout is not None and len(heldout):
+            states_i.heldout = torch.as_tensor(heldout, device=device)
+        result.append(states_i)
     return result
 
 
@@ -277,7 +309,7 @@ def distill_students(sources: StudentSources, config: DistillConfig, schedule: T
     run_seeds = [derive_seeds([study_seed, "distill", *sources.tasks, *levels, seed], ("agent", "states"))
                  for seed in seeds]
     shared = derive_seeds([study_seed, "distill", *sources.tasks, *levels], ("eval", "final_eval", "probe",
-                                                                           "conflict"))
+                                                                           "conflict", "dagger"))
     targets = group_states(sources, teachers, config, episode_length, [s["states"] for s in run_seeds],
                            schedule.rollout_envs, device, candidates)
     critics = [t.critic for t in teachers] if LOSSES[config.loss].needs_critics else None
@@ -327,13 +359,15 @@ def distill_students(sources: StudentSources, config: DistillConfig, schedule: T
                                    "candidates": [[c.actor_sha256 for c in per_task] for per_task in candidates],
                                    "judge": sources.judge if candidates else None,
                                    "states": [[t.source for t in run] for run in targets]})
-    group_curve, seconds, resumed_from = train_loop(distiller, distiller.update, evaluate, schedule, shared, None,
+    update = with_dagger(distiller, teachers, schedule.steps, shared["dagger"], rollouts)
+    group_curve, seconds, resumed_from = train_loop(distiller, update, evaluate, schedule, shared, None,
                                                     resume, fingerprint, f"distill {name}", progress)
     curves = [[split_runs(row, len(seeds))[r] for row in group_curve] for r in range(len(seeds))]
     final_seeds = [shared["final_eval"] + i for i in range(schedule.final_eval_episodes)]
     students = [distiller.student(r) for r in range(len(seeds))]
-    finals = [[returns for returns, _ in rollouts(students, i, final_seeds, keep_states=False)]
-              for i in range(len(sources.tasks))]  # [task][run]
+    final_rollouts = [rollouts(students, i, final_seeds, keep_states=True) for i in range(len(sources.tasks))]
+    finals = [[returns for returns, _ in per_task] for per_task in final_rollouts]  # [task][run]
+    visited = [[states for _, states in per_task] for per_task in final_rollouts]
     records = []
     for r, (seed, run_paths) in enumerate(zip(seeds, paths)):
         student, curve = students[r], curves[r]
@@ -343,6 +377,7 @@ def distill_students(sources: StudentSources, config: DistillConfig, schedule: T
             metrics["per_state_tau"] = tau_record(config, fixed_probes, tau_at_init[r], curve[-1])
         metrics |= q_switch_record(targets[r])
         metrics |= final_returns_record(sources.tasks, teachers, [finals[i][r] for i in range(len(sources.tasks))])
+        shift_record(metrics, distiller, r, student, teachers, [per_task[r] for per_task in visited], device)
         student_state = {k: v.cpu() for k, v in student.state_dict().items()}
         checkpoint = {
             "kind": STUDENT_KIND, "tasks": list(sources.tasks), "seed": seed, "study_seed": study_seed,
@@ -358,6 +393,86 @@ def distill_students(sources: StudentSources, config: DistillConfig, schedule: T
         write_timing(timing, seconds, device, steps=schedule.steps, runs=len(seeds),
                      steps_per_second=per_second(schedule.steps, seconds), resumed_from_step=resumed_from)
     return records
+
+
+def shift_record(metrics: dict, distiller: Distiller, run: int, student: Student, teachers: Sequence[Teacher],
+                 visited: Sequence[np.ndarray], device: torch.device) -> None:
+    """Add run ``run``'s state-shift record to its metrics: per task its action errors
+    (:func:`action_errors`) and what its density-ratio weights did (reweighted), and its DAgger
+    aggregation (the states each task gained)."""
+    for i, (task, errors) in enumerate(zip(distiller.tasks, action_errors(student, teachers, distiller.base[run],
+                                                                            visited, device))):
+        metrics[task]["action_mse"] = errors
+        reweight = {k: v for k, v in distiller.base[run][i].source.items() if k.startswith("reweight_")}
+        if reweight:  # mop_core.distill.corrections.density_weights
+            metrics[task]["reweight"] = reweight
+    if distiller.config.correction == "dagger":
+        dagger = distiller.config.dagger
+        metrics["dagger"] = {"rounds": dagger.rounds, "episodes_per_round": dagger.episodes,
+                             "aggregated_states": {task: 0 if added is None else len(added[0])
+                                                   for task, added in zip(distiller.tasks, distiller.added[run])}}
+
+
+def with_dagger(distiller: Distiller, teachers: Sequence[Teacher], steps: int, seed: int,
+                rollouts: Callable[..., list[tuple[np.ndarray, np.ndarray | None]]]) -> Callable[[], dict]:
+    """The group's update: ``distiller.update``, preceded at each DAgger round's start (correction
+    dagger) by :func:`dagger_round`. The round depends on the update count only, so a resumed run
+    aggregates where an uninterrupted one does (the aggregated states are in the resume state)."""
+    config = distiller.config
+    rounds = config.dagger.round_starts(steps) if config.correction == "dagger" else {}
+    if not rounds:
+        return distiller.update
+
+    def update() -> dict:
+        if distiller.updates in rounds:
+            dagger_round(distiller, teachers, rounds[distiller.updates], config.dagger.episodes, seed, rollouts)
+        return distiller.update()
+    return update
+
+
+def dagger_round(distiller: Distiller, teachers: Sequence[Teacher], round_index: int, episodes: int, seed: int,
+                 rollouts: Callable[..., list[tuple[np.ndarray, np.ndarray | None]]]) -> None:
+    """One DAgger aggregation (mop_core.distill.corrections): every run's student rolls out ``episodes``
+    episodes per task (seeds of round ``round_index``, the same for every run), the frozen teacher
+    labels the visited states and they join that run's states."""
+    students = [distiller.student(r) for r in range(distiller.runs)]
+    round_seeds = [seed + 1000 * round_index + j for j in range(episodes)]
+    for i, teacher in enumerate(teachers):
+        for r, (_, states) in enumerate(rollouts(students, i, round_seeds, keep_states=True)):
+            tensor = torch.as_tensor(states, dtype=torch.float32)  # the frozen teachers act on the CPU
+            actions, std = teacher_outputs(teacher.actor, tensor)
+            distiller.aggregate(r, i, tensor, actions, std)
+
+
+@torch.no_grad()
+def action_error(student: Student, task_index: int, states: torch.Tensor, teacher_actions: torch.Tensor,
+                 chunk: int = 65536) -> float:
+    """Mean over ``states`` of ``||pi^T(s) - pi^S(s, i)||^2`` (the MSE loss's per-state term; a
+    Gaussian student's action is its mean, as it acts in evaluation)."""
+    total = 0.0
+    for part, target in zip(states.split(chunk), teacher_actions.split(chunk)):
+        total += float(mse_per_state(student(part, task_index), target).sum())
+    return total / len(states)
+
+
+def action_errors(student: Student, teachers: Sequence[Teacher], targets: Sequence[TaskStates],
+                  visited: Sequence[np.ndarray], device: torch.device) -> list[dict[str, float]]:
+    """Where the student goes wrong (issue 18 part 5), per task: its action error to its targets on
+    its training states (``train``: the dataset's, before any aggregation), on held-out states of
+    the same data (``heldout``, when it has them) and to its teacher on the states it visited itself in
+    the final evaluation (``visited``: what it meets when it acts)."""
+    def to_teacher(states: torch.Tensor | np.ndarray, i: int) -> float:
+        cpu = torch.as_tensor(states, dtype=torch.float32).cpu()  # the frozen teachers act on the CPU
+        return action_error(student, i, cpu.to(device), teacher_outputs(teachers[i].actor, cpu)[0].to(device))
+
+    out = []
+    for i, states in enumerate(targets):
+        errors = {"train": action_error(student, i, states.states, states.teacher_actions)}
+        if states.heldout is not None:
+            errors["heldout"] = to_teacher(states.heldout, i)
+        errors["visited"] = to_teacher(visited[i], i)
+        out.append(errors)
+    return out
 
 
 @dataclass

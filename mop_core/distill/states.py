@@ -36,6 +36,8 @@ class TaskStates:
     teacher_actions: torch.Tensor  # [N, act]: pi_i^T(s) (a Gaussian teacher: its mean mu_i^T(s))
     teacher_std: torch.Tensor | None  # [N, act]: sigma_i^T(s) of a Gaussian teacher, else None
     source: dict  # where the states came from (for the checkpoint)
+    weights: torch.Tensor | None = None  # [N]: sampling weights (reweighted distillation); None = uniform
+    heldout: torch.Tensor | None = None  # [M, obs]: held-out states of the same data (never trained on)
 
     def __len__(self) -> int:
         return len(self.states)
@@ -55,14 +57,25 @@ def offline_states(dataset: str | Path, num_states: int, rng: np.random.Generato
                    ) -> np.ndarray:
     """``num_states`` observations of the dataset drawn without replacement (0 or more than N: all);
     ``fraction`` < 1: drawn from that share of its whole episodes (:func:`episode_rows`) only."""
+    return offline_split(dataset, num_states, rng, fraction)[0]
+
+
+def offline_split(dataset: str | Path, num_states: int, rng: np.random.Generator, fraction: float = 1.0
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`offline_states` and the observations of the whole episodes it left out (``fraction`` < 1:
+    the rest of the dataset, the students' held-out states; else none)."""
     arrays = read_dataset(dataset).arrays
     observations = arrays["observations"]
+    heldout = observations[:0]
     if fraction < 1:
-        observations = observations[episode_rows(arrays["timeouts"] | arrays["terminals"], fraction, rng)]
+        rows = episode_rows(arrays["timeouts"] | arrays["terminals"], fraction, rng)
+        kept = np.zeros(len(observations), dtype=bool)
+        kept[rows] = True
+        observations, heldout = observations[kept], observations[~kept]
     if 0 < num_states < len(observations):
         index = np.sort(rng.choice(len(observations), size=num_states, replace=False))
         observations = observations[index]
-    return np.asarray(observations, dtype=np.float32)
+    return np.asarray(observations, dtype=np.float32), np.asarray(heldout, dtype=np.float32)
 
 
 def online_states(policy, task: str, num_states: int, episode_length: int, seeds: Sequence[int],

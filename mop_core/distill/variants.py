@@ -18,7 +18,10 @@ mop_core.catalogue.make_sharing_student), so their config is plain MOP's.
 The state-shift students (thesis 5.2, the ``state_shift`` section) keep every setting but one:
 ``on_<dataset>_w<width>`` (5.2.4, Figure 5.8) learn on a composed dataset (mop_core.compose: what the
 students read, StudentRun.datasets) with every hidden layer ``width`` wide; ``data<percent>`` learn on
-``percent``% of the whole episodes of each task's dataset (``data_fraction``).
+``percent``% of the whole episodes of each task's dataset (``data_fraction``). The correcting students
+``<correction>_<dataset>_w<width>`` (5.3, issue 18 part 6) learn on a composed dataset or the offline
+one (``offline``) at that width with ``correction`` reweight or dagger (mop_core.distill.corrections;
+its settings: distill.reweight, distill.dagger).
 
 A variant's students are named ``<loss>-<variant>-<pairing>-<seed>`` (the names: mop_core.runs);
 plain MOP students have no variant. The study's variants come from the ``common_structure`` params section
@@ -31,7 +34,7 @@ from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from mop_core.ranking import RANKING_LOSSES
-from mop_core.runs import RANKING_PREFIX, WIDTH_PREFIX, composed_parts, single_task_of, size_percent
+from mop_core.runs import RANKING_PREFIX, WIDTH_PREFIX, correction_parts, shift_data, single_task_of, size_percent
 from mop_core.study import SUBSTITUTE_STUDENTS
 
 if TYPE_CHECKING:
@@ -44,8 +47,11 @@ def variant_config(config: "DistillConfig", variant: str) -> "DistillConfig":
         return config
     if variant.startswith(RANKING_PREFIX) and variant[len(RANKING_PREFIX):] in RANKING_LOSSES:
         return replace(config, ranking=replace(config.ranking, loss=variant[len(RANKING_PREFIX):]))
-    if composed_parts(variant):
-        variant = f"{WIDTH_PREFIX}{composed_parts(variant)[1]}"  # the data is the run's; the width is the config's
+    correction = correction_parts(variant)
+    if correction:
+        config = replace(config, correction=correction[0])
+    if shift_data(variant):
+        variant = f"{WIDTH_PREFIX}{shift_data(variant)[1]}"  # the data is the run's; the width is the config's
     percent = size_percent(variant)
     if percent is not None:
         return replace(config, data_fraction=percent / 100)
@@ -54,5 +60,6 @@ def variant_config(config: "DistillConfig", variant: str) -> "DistillConfig":
         sizes = (int(width),) * len(config.student.hidden_sizes)
         return replace(config, student=replace(config.student, hidden_sizes=sizes))
     raise ValueError(f"variant: expected '', w<width>, rank_<one of {tuple(RANKING_LOSSES)}>, single_<task>, "
-                     f"on_<composed dataset>_w<width>, data<percent> or one of {tuple(SUBSTITUTE_STUDENTS)}, "
+                     f"on_<composed dataset>_w<width>, <reweight|dagger>_<dataset>_w<width>, data<percent> "
+                     f"or one of {tuple(SUBSTITUTE_STUDENTS)}, "
                      f"got {variant!r}")
