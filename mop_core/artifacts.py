@@ -91,3 +91,23 @@ def write_curve(path: str | os.PathLike, rows: list[dict]) -> None:
     with atomic_path(path) as tmp:
         lines = ["\t".join(columns)] + ["\t".join(str(row[c]) for c in columns) for row in rows]
         tmp.write_text("\n".join(lines) + "\n")
+
+
+def read_curve(path: str | os.PathLike) -> list[dict[str, str]]:
+    """The rows of a learning-curve TSV (:func:`write_curve`), values as strings."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(f"{path}: learning curve not found")
+    try:
+        header, *lines = path.read_text().splitlines()
+    except (ValueError, UnicodeDecodeError) as err:  # an empty file unpacks to nothing
+        raise InputFileError(f"{path}: not a learning-curve TSV (empty or garbled): {first_line(err)}") from None
+    keys = header.split("\t")
+    if "step" not in keys:
+        raise InputFileError(f"{path}: not a learning-curve TSV (no 'step' column in the header {header[:60]!r})")
+    for number, line in enumerate(lines, start=2):
+        if len(line.split("\t")) != len(keys):
+            raise InputFileError(f"{path}: line {number} has {len(line.split(chr(9)))} columns, the header "
+                                 f"{len(keys)} (truncated?)")
+    return [dict(zip(keys, line.split("\t"))) for line in lines]
+

@@ -73,9 +73,11 @@ class Rates:
         return t_low + (t_high - t_low) * (runs - low) / (high - low)
 
 
-def _evaluation_steps(schedule: Mapping[str, Any], episode_length: int, policies: int = 1) -> int:
-    """Control steps of a run's learning-curve and final evaluations (per policy and task)."""
-    evaluations = math.ceil(schedule["steps"] / schedule["eval_every"])
+def _evaluation_steps(schedule: Mapping[str, Any], episode_length: int, policies: int = 1,
+                      final_is_last_point: bool = False) -> int:
+    """Control steps of a run's learning-curve and final evaluations (per policy and task).
+    ``final_is_last_point``: the curve's last point is the final evaluation (students)."""
+    evaluations = math.ceil(schedule["steps"] / schedule["eval_every"]) - int(final_is_last_point)
     return policies * episode_length * (evaluations * schedule["eval_episodes"] + schedule["final_eval_episodes"])
 
 
@@ -117,13 +119,13 @@ def stage_hours(params: Mapping[str, Any], rates: Rates) -> dict[str, tuple[int,
     seconds = 0.0
     for loss in distill["losses"]:
         per_entry = (d_sched["steps"] * rates.student_seconds_per_update(loss, seeds)
-                     + seeds * _evaluation_steps(d_sched, length, len(tasks)) / rates.rollout)
+                     + seeds * _evaluation_steps(d_sched, length, len(tasks), final_is_last_point=True) / rates.rollout)
         seconds += len(distill["pairings"]) * per_entry
     students = len(distill["losses"]) * len(distill["pairings"]) * seeds
     out["distill"] = (students, seconds / 3600)
     structure = params.get("common_structure", {})
     per_entry = (d_sched["steps"] * rates.student_seconds_per_update("mse", seeds)
-                 + seeds * _evaluation_steps(d_sched, length, len(tasks)) / rates.rollout)
+                 + seeds * _evaluation_steps(d_sched, length, len(tasks), final_is_last_point=True) / rates.rollout)
     for stage, key in (("distill_width", "widths"), ("distill_ranking", "ranking_losses")):
         entries = len(structure.get(key, []))
         out[stage] = (entries * seeds, entries * per_entry / 3600)
@@ -131,7 +133,7 @@ def stage_hours(params: Mapping[str, Any], rates: Rates) -> dict[str, tuple[int,
     singles = len(structure.get("single_task", []))  # one task per student: its share of a multi-task update
     out["distill_single"] = (singles * seeds, singles * (
         d_sched["steps"] * rates.student_seconds_per_update("mse", seeds) / max(len(tasks), 1)
-        + seeds * _evaluation_steps(d_sched, length, 1) / rates.rollout) / 3600)
+        + seeds * _evaluation_steps(d_sched, length, 1, final_is_last_point=True) / rates.rollout) / 3600)
 
     sharing = params.get("data_sharing", {})
     sharing_levels, kinds = sharing.get("levels", []), sharing.get("teachers", [])

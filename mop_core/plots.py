@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-from pathlib import Path
 from typing import Mapping
 
 import matplotlib
@@ -11,7 +10,6 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from mop_core.config import InputFileError, first_line  # noqa: E402
 from mop_core.data.hdf5 import atomic_path  # noqa: E402
 
 
@@ -69,25 +67,6 @@ def learning_curves(path: str | os.PathLike, curves: Mapping[str, list[dict]], t
         _label(ax, "gradient step", "episode return", task)
     fig.suptitle(title)
     _save(fig, path)
-
-
-def read_curve(path: str | os.PathLike) -> list[dict[str, str]]:
-    """The rows of a learning-curve TSV (:func:`mop_core.artifacts.write_curve`), values as strings."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputFileError(f"{path}: learning curve not found")
-    try:
-        header, *lines = path.read_text().splitlines()
-    except (ValueError, UnicodeDecodeError) as err:  # an empty file unpacks to nothing
-        raise InputFileError(f"{path}: not a learning-curve TSV (empty or garbled): {first_line(err)}") from None
-    keys = header.split("\t")
-    if "step" not in keys:
-        raise InputFileError(f"{path}: not a learning-curve TSV (no 'step' column in the header {header[:60]!r})")
-    for number, line in enumerate(lines, start=2):
-        if len(line.split("\t")) != len(keys):
-            raise InputFileError(f"{path}: line {number} has {len(line.split(chr(9)))} columns, the header "
-                                 f"{len(keys)} (truncated?)")
-    return [dict(zip(keys, line.split("\t"))) for line in lines]
 
 
 def sorted_activations(path: str | os.PathLike, mean_activations: Mapping[str, list[list[float]]], title: str) -> None:

@@ -18,11 +18,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
+from mop_core.artifacts import read_curve
 from mop_core.catalogue import Catalogue
 from mop_core.data import LEVELS, read_json
 from mop_core.distill.losses import LOSSES
 from mop_core.layout import COLLECT_METRICS, RESULTS, dataset_summary_file, stage_dir
-from mop_core.plots import band_curves, read_curve
+from mop_core.plots import band_curves
 from mop_core.runs import (
     BEHAVIOUR_LEVELS,
     behaviour_group,

@@ -63,11 +63,14 @@ def non_finite_tensor(state) -> str | None:
 
 def train_loop(agent, update: Callable[[], dict], evaluate: Callable[[list[int]], dict[str, float]],
                schedule: TrainSchedule, seeds: dict[str, int], sampler: torch.Generator | None, resume: Path,
-               fingerprint: str, desc: str, progress: bool) -> tuple[list[dict], float, int]:
+               fingerprint: str, desc: str, progress: bool, final_seeds: list[int] | None = None,
+               ) -> tuple[list[dict], float, int]:
     """Run ``update`` to ``schedule.steps`` with periodic evaluation and resume checkpoints (``resume``).
 
     ``sampler``: a generator outside the agent whose state the resume file keeps (None: the agent's
-    ``state_dict`` holds every generator it draws from).
+    ``state_dict`` holds every generator it draws from). ``final_seeds``: the last curve point
+    evaluates on these episodes instead of the curve's (the run's final evaluation, which the
+    caller's ``evaluate`` can keep rather than roll out twice); None: on the curve's, like the others.
 
     Returns the learning curve rows, the training seconds and the step it resumed from (0 if none).
     A NaN or infinite loss or weight stops the run with :class:`TrainingDivergedError` naming
@@ -99,7 +102,8 @@ def train_loop(agent, update: Callable[[], dict], evaluate: Callable[[list[int]]
         bar.update(1)
         if step % schedule.eval_every == 0 or step == schedule.steps:
             means = metrics.take()  # before the evaluation: a diverged run stops without evaluating
-            row = {"step": step, **evaluate(eval_seeds)} | means
+            episodes = final_seeds if step == schedule.steps and final_seeds is not None else eval_seeds
+            row = {"step": step, **evaluate(episodes)} | means
             curve.append(row)
             bar.set_postfix(ret=f"{row['return_mean']:.0f}")
         if step % schedule.checkpoint_every == 0 or step == schedule.steps:

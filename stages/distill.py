@@ -43,6 +43,7 @@ import argparse
 
 from common import load_params, require_inputs, run_stage
 
+from mop_core.artifacts import read_curve
 from mop_core.catalogue import (
     LOSS_ACTORS,
     make_sharing_student,
@@ -64,7 +65,6 @@ from mop_core.distill.run import (
 )
 from mop_core.distill.variants import variant_config
 from mop_core.layout import student_inputs_file
-from mop_core.plots import read_curve
 from mop_core.runtime import configure_compute, progress_enabled, resolve_device
 from mop_core.study import distill_grid, pairing_levels, sharing_grid, study_config
 from mop_core.teachers import teacher_config

@@ -378,6 +378,10 @@ def test_distill_run_writes_student_metrics_and_curve(tiny_teachers, tmp_path, l
     assert {"return_mean_stand", "return_mean_walk", "loss_stand", "loss_walk", "grad_cosine",
             "grad_cosine_stand-walk"} <= set(header.split("\t"))  # + the gradient-conflict curve
     assert len(rows) == 2 and not (tmp_path / "resume.pt").exists()
+    # the last curve point is the final evaluation (its episodes, rolled out once), the others the curve's
+    last = dict(zip(header.split("\t"), rows[-1].split("\t")))
+    for task in ("stand", "walk"):
+        assert float(last[f"return_mean_{task}"]) == metrics[task]["return_mean"]
     # the per-state tau curve (thesis 6.3.1): per hidden layer a tau-a and a tau-b column, in [-1, 1] at every
     # evaluation; tau-a <= tau-b in size (ties stay in tau-a's denominator)
     columns = header.split("\t")

@@ -170,3 +170,23 @@ def test_a_reused_walker_starts_the_episode_a_fresh_one_of_its_seed_starts():
     alone = WalkerEnv("walk", 4, 40)
     assert borrowed is not alone
     np.testing.assert_array_equal(borrowed.reset(), alone.reset())
+
+
+@pytest.mark.parametrize("task", ["stand", "walk", "run"])
+def test_a_walker_built_from_the_template_is_the_suites_own_env(task):
+    """WalkerEnv builds dm_control's walker from a per-task template (the compiled model shared, data
+    and task its own): episodes, rewards and physics equal an env ``suite.load`` builds, bit for bit."""
+    from mop_core.envs import _suite
+
+    actions = _actions(60, 1, 11)[:, 0]
+    first, second = WalkerEnv(task, 7, 60), WalkerEnv(task, 8, 60)
+    assert first.physics.model.ptr is second.physics.model.ptr  # one compiled model
+    assert first.physics.data.ptr is not second.physics.data.ptr
+    for seed, env in ((7, first), (8, second)):
+        suite_env = _suite().load("walker", task, task_kwargs={"random": seed, "time_limit": float("inf")})
+        reference = suite_env.reset()
+        np.testing.assert_array_equal(env.reset(), flatten_observation(reference.observation))
+        for action in actions:
+            step, timestep = env.step(action), suite_env.step(action)
+            assert step.reward == timestep.reward
+            np.testing.assert_array_equal(step.physics, suite_env.physics.get_state())

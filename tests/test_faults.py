@@ -18,10 +18,9 @@ import pytest
 import torch
 from conftest import ROOT
 
-from mop_core.artifacts import load_checkpoint, save_checkpoint
+from mop_core.artifacts import load_checkpoint, read_curve, save_checkpoint
 from mop_core.config import InputFileError, OutputFileError
 from mop_core.data import DatasetError, read_dataset, read_dataset_attrs, read_json, write_json
-from mop_core.plots import read_curve
 from mop_core.policies import load_policy
 from mop_core.runtime import TrainingDivergedError
 from mop_core.schedule import TrainSchedule

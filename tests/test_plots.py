@@ -5,13 +5,12 @@ from __future__ import annotations
 
 import pytest
 
-from mop_core.artifacts import write_curve
+from mop_core.artifacts import read_curve, write_curve
 from mop_core.config import InputFileError
 from mop_core.plots import (
     band_curves,
     learning_curves,
     metric_curves,
-    read_curve,
     returns_bar_chart,
     sorted_activations,
 )

@@ -9,8 +9,7 @@ from dataclasses import replace
 import pytest
 import torch
 
-from mop_core.artifacts import RunPaths, save_checkpoint
-from mop_core.plots import read_curve
+from mop_core.artifacts import RunPaths, read_curve, save_checkpoint
 from mop_core.runtime import TrainingDivergedError
 from mop_core.schedule import TrainSchedule
 from mop_core.training import (

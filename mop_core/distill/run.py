@@ -229,14 +229,70 @@ def student_policy(student: Student, task_index: int, device: torch.device, samp
                         device)
 
 
+Rollouts = list[tuple[np.ndarray, np.ndarray | None]]  # per run: returns [episodes], visited states or None
+
+
 def group_rollouts(students: Sequence[Student], tasks: Sequence[str], task_index: int, seeds: list[int],
                    episode_length: int, rollout_envs: int, device: torch.device, keep_states: bool
-                   ) -> list[tuple[np.ndarray, np.ndarray | None]]:
+                   ) -> Rollouts:
     """Every run's student on task ``tasks[task_index]`` (returns and, with ``keep_states``, visited
     states per run), the runs' walkers stepped together: what each run's own rollout gives, bit
     for bit (:func:`mop_core.rollout.policies_returns_and_states`), in one MuJoCo batch."""
     return policies_returns_and_states([student_policy(s, task_index, device) for s in students], tasks[task_index],
                                        seeds, episode_length, rollout_envs, keep_states)
+
+
+@dataclass
+class GroupEvaluation:
+    """How a group's students are evaluated online: every run on every task (its returns and
+    visited states), and each run's per-state tau on the probes (``fixed_probes``, or with none, on
+    states it visited: ``probe_source: visited``). The last curve point is the final evaluation
+    (:func:`~mop_core.training.train_loop`'s ``final_seeds``): its rollouts are kept in ``final``
+    and the run's final metrics reuse them rather than rolling them out again."""
+
+    tasks: Sequence[str]
+    episode_length: int
+    rollout_envs: int
+    device: torch.device
+    track_tau: bool
+    probe_states: int
+    probe_seed: int
+    fixed_probes: Sequence[torch.Tensor]
+    final_seeds: list[int]
+    final: list[Rollouts] | None = None  # [task] of the final evaluation, once the last curve point ran
+
+    def rollouts(self, students: Sequence[Student], task_index: int, seeds: list[int], keep_states: bool
+                 ) -> Rollouts:
+        return group_rollouts(students, self.tasks, task_index, seeds, self.episode_length, self.rollout_envs,
+                              self.device, keep_states)
+
+    def per_task(self, students: Sequence[Student], seeds: list[int]) -> list[Rollouts]:
+        """Every task's rollouts on episodes ``seeds`` (kept as ``final`` when they are the final ones)."""
+        out = [self.rollouts(students, i, seeds, keep_states=True) for i in range(len(self.tasks))]
+        if seeds == self.final_seeds:
+            self.final = out
+        return out
+
+    def final_rollouts(self, students: Sequence[Student]) -> list[Rollouts]:
+        return self.final if self.final is not None else self.per_task(students, self.final_seeds)
+
+    def probe_tau(self, student: Student, visited: Sequence[np.ndarray]) -> dict[str, float]:
+        probes = self.fixed_probes or visited_probes(visited, self.probe_states, self.probe_seed)
+        return tau_columns(per_state_tau_by_layer(student, [p.to(self.device) for p in probes]))
+
+    def rows(self, students: Sequence[Student], per_task: list[Rollouts]) -> list[dict[str, float]]:
+        """Per run: each task's return mean and std, their mean over tasks and (tracked) the tau columns."""
+        rows: list[dict[str, float]] = [{} for _ in students]
+        visited: list[list[np.ndarray]] = [[] for _ in students]
+        for task, task_runs in zip(self.tasks, per_task):
+            for r, (returns, states) in enumerate(task_runs):
+                rows[r] |= {f"{key}_{task}": value for key, value in returns_summary(returns).items()}
+                visited[r].append(states)
+        for row in rows:
+            row["return_mean"] = float(np.mean([row[f"return_mean_{task}"] for task in self.tasks]))
+        if not self.track_tau:
+            return rows
+        return [row | self.probe_tau(s, v) for row, s, v in zip(rows, students, visited)]
 
 
 def tau_record(config: DistillConfig, fixed_probes: Sequence[torch.Tensor], at_init: dict[str, float],
@@ -316,31 +372,15 @@ def distill_students(sources: StudentSources, config: DistillConfig, schedule: T
     distiller = Distiller(config, targets, OBS_DIM, ACT_DIM, [s["agent"] for s in run_seeds], critics, device,
                           schedule.steps)
     track_tau = config.probe_states > 0 and len(sources.tasks) > 1
-    fixed_probes = (offline_probes(sources, config.probe_states, shared["probe"])
-                    if track_tau and config.probe_source == "offline" else [])
-
-    def probe_tau(student: Student, visited: Sequence[np.ndarray]) -> dict[str, float]:
-        probes = fixed_probes or visited_probes(visited, config.probe_states, shared["probe"])
-        return tau_columns(per_state_tau_by_layer(student, [p.to(device) for p in probes]))
-
-    def rollouts(students: Sequence[Student], task_index: int, seeds: list[int], keep_states: bool
-                 ) -> list[tuple[np.ndarray, np.ndarray | None]]:
-        return group_rollouts(students, sources.tasks, task_index, seeds, episode_length, schedule.rollout_envs,
-                              device, keep_states)
-
-    def evaluate_runs(students: Sequence[Student], eval_seeds: list[int]) -> list[dict[str, float]]:
-        rows: list[dict[str, float]] = [{} for _ in students]
-        visited: list[list[np.ndarray]] = [[] for _ in students]
-        for i, task in enumerate(sources.tasks):
-            for r, (returns, states) in enumerate(rollouts(students, i, eval_seeds, keep_states=True)):
-                rows[r] |= {f"{key}_{task}": value for key, value in returns_summary(returns).items()}
-                visited[r].append(states)
-        for row in rows:
-            row["return_mean"] = float(np.mean([row[f"return_mean_{task}"] for task in sources.tasks]))
-        return [row | probe_tau(s, v) for row, s, v in zip(rows, students, visited)] if track_tau else rows
+    evaluation = GroupEvaluation(
+        sources.tasks, episode_length, schedule.rollout_envs, device, track_tau, config.probe_states, shared["probe"],
+        offline_probes(sources, config.probe_states, shared["probe"])
+        if track_tau and config.probe_source == "offline" else [],
+        [shared["final_eval"] + i for i in range(schedule.final_eval_episodes)])
 
     def evaluate(eval_seeds: list[int]) -> dict[str, float]:
-        rows = evaluate_runs([distiller.student(r) for r in range(len(seeds))], eval_seeds)
+        students = [distiller.student(r) for r in range(len(seeds))]
+        rows = evaluation.rows(students, evaluation.per_task(students, eval_seeds))
         rows = [row | cosines for row, cosines in zip(rows, conflict_rows(distiller, shared["conflict"]))]
         group_row = {run_key(k, r): v for r, row in enumerate(rows) for k, v in row.items()}
         return group_row | {"return_mean": float(np.mean([row["return_mean"] for row in rows]))}
@@ -349,9 +389,9 @@ def distill_students(sources: StudentSources, config: DistillConfig, schedule: T
     if track_tau:  # the untrained students, measured the way the curve is (visited: their own first episodes)
         first = [shared["eval"] + i for i in range(schedule.eval_episodes)]
         untrained = [distiller.student(r) for r in range(len(seeds))]
-        tau_at_init = ([probe_tau(student, []) for student in untrained] if fixed_probes else
+        tau_at_init = ([evaluation.probe_tau(student, []) for student in untrained] if evaluation.fixed_probes else
                        [{k: v for k, v in row.items() if k.startswith("per_state_tau_")}
-                        for row in evaluate_runs(untrained, first)])
+                        for row in evaluation.rows(untrained, evaluation.per_task(untrained, first))])
 
     fingerprint = run_fingerprint({"tasks": sources.tasks, "config": to_dict(config), "schedule": to_dict(schedule),
                                    "seeds": list(seeds), "study_seed": study_seed,
@@ -359,13 +399,12 @@ def distill_students(sources: StudentSources, config: DistillConfig, schedule: T
                                    "candidates": [[c.actor_sha256 for c in per_task] for per_task in candidates],
                                    "judge": sources.judge if candidates else None,
                                    "states": [[t.source for t in run] for run in targets]})
-    update = with_dagger(distiller, teachers, schedule.steps, shared["dagger"], rollouts)
-    group_curve, seconds, resumed_from = train_loop(distiller, update, evaluate, schedule, shared, None,
-                                                    resume, fingerprint, f"distill {name}", progress)
+    update = with_dagger(distiller, teachers, schedule.steps, shared["dagger"], evaluation.rollouts)
+    group_curve, seconds, resumed_from = train_loop(distiller, update, evaluate, schedule, shared, None, resume,
+                                                    fingerprint, f"distill {name}", progress, evaluation.final_seeds)
     curves = [[split_runs(row, len(seeds))[r] for row in group_curve] for r in range(len(seeds))]
-    final_seeds = [shared["final_eval"] + i for i in range(schedule.final_eval_episodes)]
     students = [distiller.student(r) for r in range(len(seeds))]
-    final_rollouts = [rollouts(students, i, final_seeds, keep_states=True) for i in range(len(sources.tasks))]
+    final_rollouts = evaluation.final_rollouts(students)
     finals = [[returns for returns, _ in per_task] for per_task in final_rollouts]  # [task][run]
     visited = [[states for _, states in per_task] for per_task in final_rollouts]
     records = []
@@ -374,7 +413,7 @@ def distill_students(sources: StudentSources, config: DistillConfig, schedule: T
         metrics: dict = {"tasks": list(sources.tasks), "loss": config.loss, "levels": levels, "seed": seed,
                          "gradient_steps": schedule.steps, "trained_with_seeds": list(seeds)}
         if track_tau:
-            metrics["per_state_tau"] = tau_record(config, fixed_probes, tau_at_init[r], curve[-1])
+            metrics["per_state_tau"] = tau_record(config, evaluation.fixed_probes, tau_at_init[r], curve[-1])
         metrics |= q_switch_record(targets[r])
         metrics |= final_returns_record(sources.tasks, teachers, [finals[i][r] for i in range(len(sources.tasks))])
         shift_record(metrics, distiller, r, student, teachers, [per_task[r] for per_task in visited], device)
@@ -414,7 +453,7 @@ def shift_record(metrics: dict, distiller: Distiller, run: int, student: Student
 
 
 def with_dagger(distiller: Distiller, teachers: Sequence[Teacher], steps: int, seed: int,
-                rollouts: Callable[..., list[tuple[np.ndarray, np.ndarray | None]]]) -> Callable[[], dict]:
+                rollouts: Callable[..., Rollouts]) -> Callable[[], dict]:
     """The group's update: ``distiller.update``, preceded at each DAgger round's start (correction
     dagger) by :func:`dagger_round`. The round depends on the update count only, so a resumed run
     aggregates where an uninterrupted one does (the aggregated states are in the resume state)."""
@@ -431,7 +470,7 @@ def with_dagger(distiller: Distiller, teachers: Sequence[Teacher], steps: int, s
 
 
 def dagger_round(distiller: Distiller, teachers: Sequence[Teacher], round_index: int, episodes: int, seed: int,
-                 rollouts: Callable[..., list[tuple[np.ndarray, np.ndarray | None]]]) -> None:
+                 rollouts: Callable[..., Rollouts]) -> None:
     """One DAgger aggregation (mop_core.distill.corrections): every run's student rolls out ``episodes``
     episodes per task (seeds of round ``round_index``, the same for every run), the frozen teacher
     labels the visited states and they join that run's states."""
