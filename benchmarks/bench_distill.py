@@ -10,6 +10,8 @@ Prints, at the quick (params.yaml) and thesis (profiles/thesis.yaml) student and
   stepped together (one batched policy call per step), and their ratio;
 - a group of 3 students with each ranking regulariser (``distill_ranking``, at ``distill.ranking``'s
   settings): time per update over the plain group's;
+- reweighted distillation's row draws (``distill.batch_size`` rows over a dataset's 100k states, by
+  their weights): the inverse CDF the distiller uses vs ``torch.multinomial``, draws/s and their ratio;
 - the curve evaluation of a group of 3 students (5 episodes each, one task): the runs one after
   another vs in one MuJoCo batch (``policies_returns_and_states``), and the policy on 2 torch threads
   vs 1 (what ``rollout.policy_threads`` enforces).
@@ -27,7 +29,7 @@ import yaml
 from timing import rate
 
 from mop_core.config import from_mapping
-from mop_core.distill.distiller import DistillConfig, Distiller
+from mop_core.distill.distiller import DistillConfig, Distiller, cumulative_weights, weighted_rows
 from mop_core.distill.run import student_policy
 from mop_core.distill.states import TaskStates, task_states, teacher_outputs
 from mop_core.distill.variants import variant_config
@@ -166,6 +168,25 @@ def group_eval_rates(hidden: tuple[int, ...], runs: int = 3, episodes: int = 5, 
           f"({one_by_one / one_by_one_2:.2f}x), runs in one batch {together:.0f} ({together / one_by_one_2:.2f}x)")
 
 
+def weighted_draw_rates(batch_size: int, rows: int = STATES, draws: int = 2000) -> None:
+    generator = torch.Generator().manual_seed(0)
+    weights = torch.rand(rows, generator=generator, dtype=torch.float64).pow(8)  # heavy-tailed, as density ratios
+    cdf = cumulative_weights(weights)
+    assert cdf is not None
+
+    def inverse_cdf():
+        for _ in range(draws):
+            weighted_rows(cdf, batch_size, generator)
+
+    def multinomial():
+        for _ in range(draws):
+            torch.multinomial(weights, batch_size, replacement=True, generator=generator)
+
+    ours, theirs = rate(inverse_cdf, draws), rate(multinomial, draws)
+    print(f"weighted row draws/s ({batch_size} of {rows} rows): inverse CDF {ours:.0f}, torch.multinomial "
+          f"{theirs:.0f} ({ours / theirs:.1f}x)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--threads", type=int, default=1, help="torch threads (the stage's distill.threads)")
@@ -180,6 +201,7 @@ def main() -> None:
     group_rates("thesis", thesis, thesis_teacher, steps=10)
     rollout_rates(envs, quick.student.hidden_sizes)
     ranking_rates("quick", quick, quick_teacher, steps=30)
+    weighted_draw_rates(quick.batch_size)
     group_eval_rates(quick.student.hidden_sizes)
 
 

@@ -10,8 +10,7 @@ from typing import Mapping, Sequence
 
 from mop_core.layout import HELDOUT_SUFFIX
 from mop_core.report import fmt, not_run, table
-
-OFFLINE = "offline"
+from mop_core.study import OFFLINE_DATA
 
 
 def _plain(info: Mapping) -> bool:
@@ -35,7 +34,7 @@ def _cell(row: Mapping, task: str) -> str:
 
 def _data_label(data: str, levels: Mapping[str, str]) -> str:
     level = sorted(set(levels.values()))
-    return f"{'+'.join(level)} dataset (behaviour policy)" if data == OFFLINE else data
+    return f"{'+'.join(level)} dataset (behaviour policy)" if data == OFFLINE_DATA else data
 
 
 def _rows_by(groups: Mapping[str, Mapping], predicate) -> list[str]:
@@ -101,7 +100,7 @@ def shift_lines(metrics: Mapping) -> list[str]:
 def online_lines(metrics: Mapping, tasks: Sequence[str]) -> list[str]:
     groups, students = metrics.get("groups", {}), metrics.get("students", {})
     width = metrics.get("student_width")
-    offline = _rows_by(groups, lambda i: i["data"] == OFFLINE and i["width"] == width and i["percent"] == 100
+    offline = _rows_by(groups, lambda i: i["data"] == OFFLINE_DATA and i["width"] == width and i["percent"] == 100
                        and _plain(i))
     online = _rows_by(groups, lambda i: i["data"] == "online" and i["width"] == width and _plain(i))
     if not (offline and online):
@@ -126,7 +125,7 @@ def _seed_caption(students: Mapping, labels: Sequence[str]) -> str:
 def capacity_lines(metrics: Mapping, tasks: Sequence[str], link_prefix: str) -> list[str]:
     groups, students = metrics.get("groups", {}), metrics.get("students", {})
     labels = _rows_by(groups, lambda i: i["percent"] == 100 and _plain(i))
-    composed = [label for label in labels if groups[label]["data"] != OFFLINE]
+    composed = [label for label in labels if groups[label]["data"] != OFFLINE_DATA]
     if not composed:
         return []
     order = list(dict.fromkeys(groups[label]["data"] for label in labels))
@@ -158,7 +157,7 @@ def capacity_lines(metrics: Mapping, tasks: Sequence[str], link_prefix: str) -> 
 def size_lines(metrics: Mapping, tasks: Sequence[str]) -> list[str]:
     groups, students = metrics.get("groups", {}), metrics.get("students", {})
     width = metrics.get("student_width")
-    labels = _rows_by(groups, lambda i: i["data"] == OFFLINE and i["width"] == width and _plain(i))
+    labels = _rows_by(groups, lambda i: i["data"] == OFFLINE_DATA and i["width"] == width and _plain(i))
     if len(labels) < 2:
         return []
     labels.sort(key=lambda label: groups[label]["percent"])

@@ -28,6 +28,13 @@ SECTIONS = ("study", "collect", "relabel", "train_teachers", "train_multitask", 
 RANKING_LOSS_NAMES = ("pairwise", "listwise", "approx_ndcg")  # mop_core.ranking.RANKING_LOSSES (tested equal)
 
 
+def require_widths(widths: tuple[int, ...], key: str) -> None:
+    """A grid's student widths: distinct positive integers (the hidden width of every student layer)."""
+    require(all(isinstance(w, int) and not isinstance(w, bool) and w >= 1 for w in widths), key,
+            "a list of positive integers (hidden width of every student layer)", list(widths))
+    require_unique(widths, key)
+
+
 @dataclass(frozen=True)
 class StudyConfig:
     """The study grid and process settings shared by all stages."""
@@ -114,9 +121,7 @@ class StructureGrid:
     single_task: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
-        require(all(isinstance(w, int) and not isinstance(w, bool) and w >= 1 for w in self.widths), "widths",
-                "a list of positive integers (hidden width of every student layer)", list(self.widths))
-        require_unique(self.widths, "widths")
+        require_widths(self.widths, "widths")
         for i, loss in enumerate(self.ranking_losses):
             require(loss in RANKING_LOSS_NAMES, f"ranking_losses[{i}]", f"one of {', '.join(RANKING_LOSS_NAMES)}",
                     loss)
@@ -202,9 +207,7 @@ class ShiftGrid:
     measure: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        require(all(isinstance(w, int) and not isinstance(w, bool) and w >= 1 for w in self.widths), "widths",
-                "a list of positive integers (hidden width of every student layer)", list(self.widths))
-        require_unique(self.widths, "widths")
+        require_widths(self.widths, "widths")
         require(all(isinstance(p, int) and not isinstance(p, bool) and 1 <= p <= 99 for p in self.data_percents),
                 "data_percents", "a list of whole percentages in [1, 99] (100 is plain MOP)", list(self.data_percents))
         require_unique(self.data_percents, "data_percents")
@@ -219,9 +222,7 @@ class ShiftGrid:
             require(name == OFFLINE_DATA or name in self.datasets, f"correction_datasets[{i}]",
                     f"{OFFLINE_DATA!r} (the pairing's collect dataset) or one of datasets {list(self.datasets)}", name)
         require_unique(self.correction_datasets, "correction_datasets")
-        require(all(isinstance(w, int) and not isinstance(w, bool) and w >= 1 for w in self.correction_widths),
-                "correction_widths", "a list of positive integers", list(self.correction_widths))
-        require_unique(self.correction_widths, "correction_widths")
+        require_widths(self.correction_widths, "correction_widths")
         require(not self.corrections or (self.correction_datasets and self.correction_widths),
                 "corrections", "[] unless correction_datasets and correction_widths are set", list(self.corrections))
         require(not any(n != OFFLINE_DATA for n in self.correction_datasets) or self.datasets,

@@ -39,7 +39,6 @@ from mop_core.timings import write_timing
 
 OUT = RESULTS / "state_shift"
 FIGURES = OUT / "figures"  # a folder output: the figures a run's params produce (none without students)
-OFFLINE = OFFLINE_DATA  # the label of the collect stage's dataset of the pairing's level in the tables
 
 
 def main() -> None:
@@ -85,9 +84,9 @@ def main() -> None:
         groups.setdefault(run.variant, []).append(run)
     plain = [make_student("mse", grid.pairing, s, study.tasks, levels, teacher_seed) for s in seeds]
     structure = structure_grid(params, study)
-    references = {f"{OFFLINE}_w{width}": plain}
+    references = {f"{OFFLINE_DATA}_w{width}": plain}
     if structure.pairing == grid.pairing:
-        references |= {f"{OFFLINE}_w{w}": [make_student("mse", grid.pairing, s, study.tasks, levels, teacher_seed,
+        references |= {f"{OFFLINE_DATA}_w{w}": [make_student("mse", grid.pairing, s, study.tasks, levels, teacher_seed,
                                                          width_variant(w)) for s in seeds] for w in structure.widths}
     all_groups = references | groups
     require_inputs([run.paths.metrics for runs in all_groups.values() for run in runs], "distill")
@@ -111,12 +110,13 @@ def describe(label: str, width: int) -> dict:
     """What a table row is: its data (offline, a composed dataset), width, dataset share and state-shift
     correction (none, reweight, dagger)."""
     correction = (correction_parts(label) or ("none",))[0]
-    if label.startswith(f"{OFFLINE}_w"):
-        return {"data": OFFLINE, "width": int(label[len(OFFLINE) + 2:]), "percent": 100, "correction": correction}
+    if label.startswith(f"{OFFLINE_DATA}_w"):
+        return {"data": OFFLINE_DATA, "width": int(label[len(OFFLINE_DATA) + 2:]), "percent": 100,
+                "correction": correction}
     parts = shift_data(label)
     if parts:
         return {"data": parts[0], "width": parts[1], "percent": 100, "correction": correction}
-    return {"data": OFFLINE, "width": width, "percent": size_percent(label), "correction": correction}
+    return {"data": OFFLINE_DATA, "width": width, "percent": size_percent(label), "correction": correction}
 
 
 def plain(info: dict) -> bool:
@@ -132,7 +132,7 @@ def shift_points(metrics: dict, tasks) -> dict[int, dict[str, list[tuple[float, 
         if not plain(info):
             continue
         for task in tasks:
-            data = info["data"] if info["data"] != OFFLINE else metrics["pairing_levels"][task]
+            data = info["data"] if info["data"] != OFFLINE_DATA else metrics["pairing_levels"][task]
             measured = metrics["shift"].get(task, {}).get(data)
             if measured:
                 points.setdefault(info["width"], {}).setdefault(task, []).append(
@@ -168,7 +168,7 @@ def write_figures(metrics: dict, tasks) -> None:
             r = table[label][task]["return"]
             capacity.setdefault(task, {}).setdefault(info["data"], []).append(
                 (info["width"], r["mean"], r["ci_low"], r["ci_high"]))
-            measured = metrics["shift"].get(task, {}).get(info["data"] if info["data"] != OFFLINE
+            measured = metrics["shift"].get(task, {}).get(info["data"] if info["data"] != OFFLINE_DATA
                                                           else metrics["pairing_levels"][task])
             if measured:
                 ratio = table[label][task]["to_teacher"]

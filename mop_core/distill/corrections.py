@@ -29,8 +29,9 @@ import numpy as np
 
 from mop_core.config import require
 from mop_core.shift import ClassifierConfig, classifier_test, draw, effective_share
+from mop_core.study import SHIFT_CORRECTIONS
 
-CORRECTIONS = ("none", "reweight", "dagger")
+CORRECTIONS = ("none", *SHIFT_CORRECTIONS)  # distill.correction: none, or a state_shift.corrections entry
 
 
 @dataclass(frozen=True)

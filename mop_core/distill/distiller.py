@@ -141,7 +141,7 @@ def distill_config(params: Mapping[str, Any], loss: str) -> DistillConfig:
     return from_mapping(DistillConfig, raw | {"loss": loss}, "distill")
 
 
-def _cumulative(weights: torch.Tensor | None) -> torch.Tensor | None:
+def cumulative_weights(weights: torch.Tensor | None) -> torch.Tensor | None:
     """The normalised cumulative sum of sampling weights (float64), None for uniform sampling."""
     if weights is None:
         return None
@@ -149,6 +149,14 @@ def _cumulative(weights: torch.Tensor | None) -> torch.Tensor | None:
         raise ValueError("weights: expected non-negative sampling weights with a positive sum")
     cdf = torch.cumsum(weights.double(), 0)
     return cdf / cdf[-1]
+
+
+def weighted_rows(cdf: torch.Tensor, count: int, generator: torch.Generator) -> torch.Tensor:
+    """``count`` row indices drawn with replacement, row i with probability ``w_i / sum w`` (``cdf``:
+    :func:`cumulative_weights`), by inverse CDF: one uniform and a binary search per draw; a zero-weight
+    row is never drawn. benchmarks/bench_distill.py times it against ``torch.multinomial``."""
+    u = torch.rand(count, generator=generator, device=cdf.device, dtype=torch.float64)
+    return torch.searchsorted(cdf, u, right=True).clamp_max(len(cdf) - 1)
 
 
 class Distiller:
@@ -170,7 +178,7 @@ class Distiller:
         self.config, self.device, self.targets = config, torch.device(device), [list(t) for t in targets]
         self.base = [list(t) for t in targets]  # the states before any aggregation (DAgger)
         self.added: list[list[list | None]] = [[None] * len(t) for t in targets]
-        self.cdfs = [[_cumulative(t.weights) for t in run] for run in self.targets]  # sampling weights' CDFs
+        self.cdfs = [[cumulative_weights(t.weights) for t in run] for run in self.targets]  # sampling weights' CDFs
         self.total_steps = total_steps  # the length of the learning-rate schedule
         self.tasks = [t.task for t in self.targets[0]]
         if any([t.task for t in run] != self.tasks for run in self.targets):
@@ -204,10 +212,8 @@ class Distiller:
 
     def _rows(self, run: int, task: int, batch_size: int) -> torch.Tensor:
         cdf = self.cdfs[run][task]
-        if cdf is not None:  # reweighted distillation: rows drawn in proportion to their weight (inverse CDF:
-            #                  7x faster than torch.multinomial over 100k rows; a zero-weight row is never drawn)
-            u = torch.rand(batch_size, generator=self.generators[run], device=self.device, dtype=torch.float64)
-            return torch.searchsorted(cdf, u, right=True).clamp_max(len(cdf) - 1)
+        if cdf is not None:  # reweighted distillation: rows drawn in proportion to their weight
+            return weighted_rows(cdf, batch_size, self.generators[run])
         return torch.randint(len(self.targets[run][task]), (batch_size,), generator=self.generators[run],
                              device=self.device)
 
