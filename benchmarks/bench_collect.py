@@ -1,11 +1,13 @@
 """Speed of the collect and relabel building blocks, measured in one run on this machine.
 
-Prints: dm_control env steps/s; batched stepping of many walkers with a batched policy (members
-stepped through dm_control, as before issue 16, vs our VectorWalkerEnv's raw MuJoCo step in 1 and 2
-threads), and MuJoCo's multi-threaded open-loop ``mujoco.rollout`` (the ceiling), with ratios; relabel
-transitions/s (vectorised formula vs physics replay, target >= 1M/s vectorised); TD3 updates/s at
-the quick (params.yaml) and thesis (profiles/thesis.yaml) sizes. Each figure is the median of a
-few timed repeats after a warm-up. Run: ``python benchmarks/bench_collect.py [--quick-only]``.
+Prints: walkers built/s (dm_control's suite parsing the XML model each time, as before, vs
+``WalkerEnv`` from its task's template, sharing the compiled model); dm_control env steps/s; batched
+stepping of many walkers with a batched policy (members stepped through dm_control, as before issue
+16, vs our VectorWalkerEnv's raw MuJoCo step in 1 and 2 threads), and MuJoCo's multi-threaded
+open-loop ``mujoco.rollout`` (the ceiling), with ratios; relabel transitions/s (vectorised formula vs
+physics replay, target >= 1M/s vectorised); TD3 updates/s at the quick (params.yaml) and thesis
+(profiles/thesis.yaml) sizes. Each figure is the median of a few timed repeats after a warm-up. Run:
+``python benchmarks/bench_collect.py [--quick-only]``.
 """
 
 from __future__ import annotations
@@ -29,6 +31,20 @@ from mop_core.relabel import relabel_rewards
 from mop_core.runtime import configure_compute
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def walkers_built_per_second(count: int = 20) -> tuple[float, float]:
+    from mop_core.envs import _suite
+
+    def suite():
+        for seed in range(count):
+            _suite().load("walker", "walk", task_kwargs={"random": seed, "time_limit": float("inf")})
+
+    def templated():
+        for seed in range(count):
+            WalkerEnv("walk", seed)
+
+    return rate(suite, count), rate(templated, count)
 
 
 def env_steps_per_second(steps: int = 2000) -> float:
@@ -131,6 +147,9 @@ def main() -> None:
     args = parser.parse_args()
     configure_compute(1)
     print(f"torch {torch.__version__}, mujoco {mujoco.__version__}, 1 torch thread per measurement")
+    suite, templated = walkers_built_per_second()
+    print(f"walkers built: suite.load {suite:,.0f}/s, WalkerEnv from the task's template {templated:,.0f}/s "
+          f"({templated / suite:.1f}x)")
     single = env_steps_per_second()
     print(f"dm_control walker, one env:                 {single:10,.0f} steps/s")
     one_policy = vector_env_steps_per_second(num_envs=1, steps=1000)

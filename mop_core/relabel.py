@@ -15,13 +15,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
-import h5py
 import numpy as np
 import torch
 
 from mop_core.config import require
-from mop_core.data import TransitionTensors, atomic_path, read_dataset, read_relabel, write_relabel
-from mop_core.data.hdf5 import DATASET_SCHEMA, Dataset, DatasetError
+from mop_core.data import TransitionTensors, read_dataset, read_relabel, write_dataset, write_relabel
+from mop_core.data.hdf5 import Dataset, DatasetError
 from mop_core.envs import physics_replay_rewards
 from mop_core.tasks import check_task_list, reward
 
@@ -109,16 +108,16 @@ def load_transitions(dataset_path: str | os.PathLike, relabel_path: str | os.Pat
 
 def export_d4rl(dataset_path: str | os.PathLike, relabel_path: str | os.PathLike, reward_task: str,
                 out_path: str | os.PathLike) -> Path:
-    """Write D_{j->i} as a standalone D4RL-style HDF5 file (rewards float32 under ``rewards``)."""
+    """Write D_{j->i} as a standalone dataset file: task j's transitions with task i's rewards
+    (``reward_task``, float32 under ``rewards``, D4RL's keys), in the study's own schema, so
+    :func:`~mop_core.data.read_dataset` reads it back (as a dataset of task i: attribute ``task`` is
+    the reward task, ``source_task`` the task whose behaviour policy acted) and any D4RL reader too.
+    Its content_sha256 is its own; ``dataset_content_sha256`` names the dataset it came from."""
     dataset = read_dataset(dataset_path)
     rewards = read_relabel(relabel_path, dataset, reward_task)[reward_task]
-    with atomic_path(out_path) as tmp:
-        with h5py.File(tmp, "w") as h5:
-            for name, (file_path, _, dtype) in DATASET_SCHEMA.items():
-                data = rewards.astype(np.float32) if name == "rewards" else dataset.arrays[name]
-                h5.create_dataset(file_path, data=np.asarray(data, dtype=dtype), track_times=False)
-            h5.attrs["source_task"] = dataset.attrs["task"]
-            h5.attrs["reward_task"] = reward_task
-            h5.attrs["level"] = dataset.attrs["level"]
-            h5.attrs["dataset_content_sha256"] = dataset.attrs["content_sha256"]
+    arrays = dict(dataset.arrays) | {"rewards": rewards.astype(np.float32)}
+    attrs = {key: value for key, value in dataset.attrs.items() if key != "content_sha256"} | {
+        "task": reward_task, "source_task": dataset.attrs["task"], "reward_task": reward_task,
+        "dataset_content_sha256": dataset.attrs["content_sha256"]}
+    write_dataset(out_path, arrays, attrs)
     return Path(out_path)

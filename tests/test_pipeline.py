@@ -268,6 +268,50 @@ def test_the_readme_shows_the_tested_commands():
     assert "dvc exp run --pull -S" in readme
 
 
+README_LIBRARIES = "## Use the data with other libraries"
+
+
+def readme_blocks(readme: str) -> list[tuple[str, str, str]]:
+    """Every fenced code block of the README: (its section heading, language, code)."""
+    blocks, section = [], ""
+    for part in re.split(r"^(## .*|```\w*\n(?:.*\n)*?```)$", readme, flags=re.M):
+        if part.startswith("## "):
+            section = part
+        elif part.startswith("```"):
+            language, _, code = part[3:].partition("\n")
+            blocks.append((section, language, code.removesuffix("```")))
+    return blocks
+
+
+def test_the_readmes_library_snippets_run_on_the_tiny_studys_outputs(repo, tmp_path):
+    """Every Python block of the README, and the shell commands of its section on other libraries,
+    run verbatim in order, in a copy of the tiny study (they write files of their own). The other
+    shell blocks are the two setup commands (.ci/run runs the tests' one; the record the study's) and
+    the DVC one-liners the tests above run (test_the_readme_shows_the_tested_commands)."""
+    pytest.importorskip("minari", reason="the README's Minari and d3rlpy blocks need pip install -e '.[ecosystem]'")
+    pytest.importorskip("d3rlpy", reason="the README's Minari and d3rlpy blocks need pip install -e '.[ecosystem]'")
+    blocks = readme_blocks((ROOT / "README.md").read_text())
+    runnable = [(lang, code) for section, lang, code in blocks
+                if lang == "python" or (lang == "bash" and section == README_LIBRARIES)]
+    assert [lang for lang, _ in runnable] == ["python", "python", "bash", "python", "python"]
+    assert all(lang in ("bash", "python", "") for _, lang, _ in blocks)  # "": the DAG drawing
+    work = tmp_path / "study"
+    shutil.copytree(repo, work, symlinks=True)
+    outputs = []
+    for number, (lang, code) in enumerate(runnable):
+        script = tmp_path / f"block{number}.{'py' if lang == 'python' else 'sh'}"
+        script.write_text(code)
+        stdout = _run([sys.executable if lang == "python" else "bash", str(script)], work).stdout
+        outputs.append(stdout.strip().splitlines()[-1])  # what the block prints last (d3rlpy logs before it)
+    assert outputs[0].strip() == "walk torch.Size([256])"
+    shape, dtype = outputs[1].split(")")[0] + ")", outputs[1].split()[1]
+    assert shape == "(24,)" and dtype == "float32"
+    assert "Minari datasets in data/minari" in outputs[2] and (work / "data" / "minari" / "mop").is_dir()
+    episodes, score = outputs[3].split()[0], outputs[3].split()[-1]
+    assert int(episodes) > 0 and -1.0 < float(score.strip("[]")) < 2.0
+    assert float(outputs[4]) >= 0.0  # the d3rlpy policy's return in mop/walker-walk-v0
+
+
 def test_metrics_show_holds_the_headline_numbers_and_the_timings_apart(repo):
     shown = json.loads(_run(["dvc", "metrics", "show", "--json"], repo).stdout)[""]["data"]
     assert all(path == "results/metrics.json" or path.startswith("results/timings/") for path in shown), shown

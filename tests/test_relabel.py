@@ -63,6 +63,8 @@ def test_load_transitions_gives_d_j_to_i(relabelled):
 
 
 def test_export_d4rl_round_trip(relabelled, tmp_path):
+    """D_{stand->run} as its own file: D4RL keys for any reader, and mop's read_dataset reads it back
+    (every array but the rewards equal to the source dataset's, as a dataset of the reward task)."""
     dataset_path, relabel_path, _ = relabelled
     out = export_d4rl(dataset_path, relabel_path, "run", tmp_path / "stand_to_run.hdf5")
     ds = read_dataset(dataset_path)
@@ -71,6 +73,12 @@ def test_export_d4rl_round_trip(relabelled, tmp_path):
         np.testing.assert_array_equal(h5["observations"][()], ds.arrays["observations"])
         np.testing.assert_allclose(h5["rewards"][()], relabel_rewards(ds, ["run"])["run"], atol=1e-6)
         assert h5["rewards"].dtype == np.float32
+    back = read_dataset(out, verify_checksum=True, task="run", level=ds.attrs["level"])
+    for name, array in ds.arrays.items():
+        if name != "rewards":
+            np.testing.assert_array_equal(back.arrays[name], array)
+    np.testing.assert_array_equal(back.arrays["rewards"], relabel_rewards(ds, ["run"])["run"].astype(np.float32))
+    assert back.attrs["dataset_content_sha256"] == ds.attrs["content_sha256"] != back.attrs["content_sha256"]
 
 
 def test_stale_or_incomplete_relabel_file_is_rejected(relabelled, tiny_collected):
