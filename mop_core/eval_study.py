@@ -28,17 +28,27 @@ from mop_core.evaluation import EvalConfig, episode_seeds, run_jobs
 from mop_core.plots import learning_curves, returns_bar_chart
 from mop_core.runs import cross_group, is_cross_group, teacher_group
 from mop_core.runtime import derive_seeds
-from mop_core.statistics import improvement_summary, iqm_summary, normalised_score, ratio_to_teacher, summarise_group
+from mop_core.statistics import (
+    improvement_summary,
+    iqm_summary,
+    normalised_score,
+    paired_difference,
+    ratio_to_teacher,
+    summarise_group,
+)
 from mop_core.tasks import get_task
 from mop_core.timings import per_second, write_timing
 
 AGGREGATE_NOTE = ("IQM: interquartile mean of normalised scores pooled over tasks; probability of improvement "
-                  "P(X > Y): per task the share of (x, y) score pairs with x > y (ties 1/2), averaged over tasks; "
-                  "X vs teachers compares with the teacher runs X learned from. 95% percentile intervals of a "
-                  "stratified bootstrap ({reps} replicates) over runs x episodes within each task (Agarwal et al. "
-                  "2021, rliable). A group's IQM pools the tasks its policies were trained for; a teacher group "
-                  "pools the study's tasks only (a substitute task's teachers, e.g. stand_still's on stand's data, "
-                  "share the group names of the study set's teachers of their kind).")
+                  "P(X > Y): per task the share of (x, y) run pairs with x > y (ties 1/2), averaged over tasks; "
+                  "X vs teachers compares with the teacher runs X learned from. As in rliable, a run (one training "
+                  "seed of a policy) is scored by its mean normalised return over its evaluation episodes, and the "
+                  "95% percentile intervals come from a stratified bootstrap ({reps} replicates) over runs within "
+                  "each task (Agarwal et al. 2021); a side with fewer than 3 runs gets no interval. Groups that share "
+                  "training seeds are compared paired: the per-seed difference of their scores, mean over tasks, "
+                  "with a Student-t 95% interval over the seeds. A group's IQM pools the tasks its policies were "
+                  "trained for; a teacher group pools the study's tasks only (a substitute task's teachers, e.g. "
+                  "stand_still's on stand's data, share the group names of the study set's teachers of their kind).")
 
 
 @dataclass
@@ -126,32 +136,38 @@ def iqm_tasks(group: str, tasks, catalogue: Catalogue) -> list[str]:
     return [task for task in tasks if group in students or task in catalogue.tasks]
 
 
+def run_scores(scores: dict, group: str, task: str, seed: int | None = None) -> dict[int, float]:
+    """``{train seed: the run's mean normalised score over its episodes}`` of a group on a task (only
+    ``seed`` where given): rliable's unit, one score per run."""
+    runs = scores[group][task]
+    return {s: float(np.mean(runs[s])) for s in sorted(runs) if seed is None or s == seed}
+
+
 def aggregates(scores: dict, catalogue: Catalogue, config: EvalConfig) -> dict:
-    """IQM per group and probabilities of improvement, on normalised scores."""
-    def pooled(group: str, task: str, seed: int | None = None) -> np.ndarray:
-        runs = scores[group][task]
-        return runs[seed] if seed is not None else np.concatenate([runs[s] for s in sorted(runs)])
+    """IQM per group, probabilities of improvement and paired differences, on run scores."""
+    def matrix(group: str, tasks, seed_by_task: dict | None = None) -> dict[str, np.ndarray]:
+        return {t: np.array(list(run_scores(scores, group, t, (seed_by_task or {}).get(t)).values())) for t in tasks}
 
     def seed_of(name: str) -> int:
         return derive_seeds([catalogue.study_seed, "eval", "bootstrap", name], ("bootstrap",))["bootstrap"]
 
     reps = config.bootstrap_reps
-    iqm = {group: iqm_summary({task: pooled(group, task) for task in iqm_tasks(group, scores[group], catalogue)},
-                              reps, seed_of(group))
+    iqm = {group: iqm_summary(matrix(group, iqm_tasks(group, scores[group], catalogue)), reps, seed_of(group))
            for group in scores if not is_cross_group(group)}
-    improvement = {}
+    improvement, paired = {}, {}
     for group, by_task in catalogue.references().items():
         if group not in scores:
             continue
         tasks, name = list(scores[group]), f"{group}_vs_teachers"
-        improvement[name] = improvement_summary({t: pooled(group, t) for t in tasks},
-                                                {t: pooled(by_task[t].group, t, by_task[t].seed) for t in tasks},
-                                                reps, seed_of(name))
+        teachers = {t: np.array(list(run_scores(scores, by_task[t].group, t, by_task[t].seed).values()))
+                    for t in tasks}
+        improvement[name] = improvement_summary(matrix(group, tasks), teachers, reps, seed_of(name))
     for x, y in catalogue.student_comparisons():
         tasks, name = list(scores[x]), f"{x}_vs_{y}"
-        improvement[name] = improvement_summary({t: pooled(x, t) for t in tasks}, {t: pooled(y, t) for t in tasks},
-                                                reps, seed_of(name))
-    return {"iqm_normalised": iqm, "probability_of_improvement": improvement,
+        improvement[name] = improvement_summary(matrix(x, tasks), matrix(y, tasks), reps, seed_of(name))
+        paired[name] = paired_difference({t: run_scores(scores, x, t) for t in tasks},
+                                         {t: run_scores(scores, y, t) for t in tasks})
+    return {"iqm_normalised": iqm, "probability_of_improvement": improvement, "paired_difference": paired,
             "note": AGGREGATE_NOTE.format(reps=reps)}
 
 
@@ -234,7 +250,8 @@ def print_summary(plotted: dict, metrics: dict, timing: dict) -> None:
             print(f"{task:6s} {group:32s} {s['mean']:7.1f}  [{s['ci_low']:.1f}, {s['ci_high']:.1f}]  "
                   f"n={s['n']} {s['ci_unit']}s  normalised {s['normalised']['mean']:.1f}")
     for name, entry in metrics["aggregate"]["probability_of_improvement"].items():
-        print(f"P({name.replace('_vs_', ' > ')}) = {entry['value']:.2f} "
-              f"[{entry['ci_low']:.2f}, {entry['ci_high']:.2f}]")
+        interval = (f"[{entry['ci_low']:.2f}, {entry['ci_high']:.2f}]" if entry["ci_low"] is not None
+                    else "(no interval: fewer than 3 runs)")
+        print(f"P({name.replace('_vs_', ' > ')}) = {entry['value']:.2f} {interval}")
     print(f"eval: {timing['jobs']} jobs in {timing['seconds']:.0f} s ({timing['env_steps_per_second']:.0f} "
           "env steps/s)")

@@ -16,6 +16,7 @@ from mop_core.statistics import (
     confidence_interval,
     improvement_summary,
     iqm_summary,
+    paired_difference,
     ratio_to_teacher,
     summarise_group,
 )
@@ -64,7 +65,11 @@ def test_three_or_more_training_seeds_get_an_interval_over_the_seeds():
     s = summarise_group(runs)
     expected = confidence_interval([r.mean() for r in runs.values()])
     assert s["ci_unit"] == "training_seed" and s["n"] == 3 and s["episodes"] == 12
-    assert (s["ci_low"], s["ci_high"]) == pytest.approx((expected["ci_low"], expected["ci_high"]))
+    # a return is >= 0: the t-interval over 3 seeds reaches below 0 here, so it is cut there and flagged
+    assert expected["ci_low"] < 0 and s["ci_low"] == 0.0 and s["cut_at_bound"]
+    assert s["ci_high"] == pytest.approx(expected["ci_high"])
+    wide = summarise_group({seed: np.full(4, 500.0 + seed) for seed in range(3)})
+    assert not wide["cut_at_bound"] and wide["ci_low"] == pytest.approx(confidence_interval([500, 501, 502])["ci_low"])
 
 
 def test_normalised_scores_map_the_mean_and_interval():
@@ -90,12 +95,43 @@ def test_iqm_and_improvement_summaries_name_their_unit_and_sizes():
     good = {"stand": rng.normal(60, 10, 30), "walk": rng.normal(40, 10, 30)}
     bad = {"stand": rng.normal(30, 10, 15), "walk": rng.normal(10, 10, 15)}
     summary = iqm_summary(good, reps=200, seed=0)
-    assert summary["tasks"] == "stand, walk" and summary["samples_per_task"] == 30
-    assert summary["ci_low"] < summary["value"] < summary["ci_high"] and "stratified" in summary["ci_unit"]
+    assert summary["tasks"] == "stand, walk" and summary["runs_per_task"] == 30
+    assert summary["ci_low"] < summary["value"] < summary["ci_high"] and summary["ci_unit"] == "runs, stratified by task"
     better = improvement_summary(good, bad, reps=200, seed=0)
-    assert (better["samples_x"], better["samples_y"]) == (30, 15) and better["ci_low"] > 0.5
-    with pytest.raises(ValueError, match="same number of samples per task"):
+    assert (better["runs_x"], better["runs_y"]) == (30, 15) and better["ci_low"] > 0.5
+    with pytest.raises(ValueError, match="same number of runs per task"):
         iqm_summary({"stand": np.zeros(3), "walk": np.zeros(4)}, reps=10, seed=0)
+
+
+def test_fewer_than_three_runs_get_no_interval():
+    one_run = {"stand": np.array([40.0]), "walk": np.array([60.0])}
+    summary = iqm_summary(one_run, reps=200, seed=0)
+    assert summary["value"] == pytest.approx(50.0) and summary["ci_low"] is None and summary["ci_high"] is None
+    three = {"stand": np.array([70.0, 75.0, 80.0]), "walk": np.array([65.0, 70.0, 90.0])}
+    versus_one = improvement_summary(three, one_run, reps=200, seed=0)
+    assert versus_one["value"] == 1.0 and versus_one["ci_low"] is None  # one teacher run: no interval
+    assert improvement_summary(three, three, reps=200, seed=0)["ci_low"] is not None
+
+
+def test_the_eval_aggregates_score_each_run_by_its_mean_over_episodes():
+    """rliable's unit: 3 runs x 15 episodes are 3 scores per task, not 45 (the bootstrap resamples runs)."""
+    from mop_core.eval_study import run_scores
+
+    rng = np.random.default_rng(1)
+    scores = {"g": {"stand": {s: rng.normal(50 + 10 * s, 30, 15) for s in range(3)}}}
+    assert run_scores(scores, "g", "stand") == {s: pytest.approx(scores["g"]["stand"][s].mean()) for s in range(3)}
+    assert list(run_scores(scores, "g", "stand", seed=1)) == [1]
+
+
+def test_groups_sharing_seeds_are_compared_paired_by_seed():
+    x = {"stand": {0: 10.0, 1: 20.0, 2: 30.0}, "walk": {0: 12.0, 1: 22.0, 2: 32.0}}
+    y = {"stand": {0: 9.0, 1: 18.0, 2: 29.0, 3: 0.0}, "walk": {0: 11.0, 1: 20.0, 2: 30.0}}
+    d = paired_difference(x, y)  # per seed: mean over tasks of x - y = 1, 2, 1.5 (seed 3 is not paired)
+    expected = confidence_interval([1.0, 2.0, 1.5])
+    assert d["n"] == 3 and d["seeds"] == "0, 1, 2" and d["ci_unit"] == "paired_seed"
+    assert (d["mean"], d["ci_low"], d["ci_high"]) == pytest.approx((1.5, expected["ci_low"], expected["ci_high"]))
+    two = paired_difference({"stand": {0: 1.0, 1: 2.0}}, {"stand": {0: 0.0, 1: 0.0}})
+    assert two["n"] == 2 and two["ci_low"] is None  # under 3 seeds: no interval
 
 
 def test_eval_config_needs_two_episodes_for_an_interval_and_a_known_action_rule():

@@ -70,3 +70,51 @@ def test_normalised_score_maps_random_to_zero_and_expert_to_hundred():
     np.testing.assert_allclose(normalised_score(np.array([568.4]), 150.0, 986.8), [50.0])
     with pytest.raises(ValueError, match="expert_return"):
         normalised_score(1.0, 100.0, 50.0)
+
+
+def _rliable_intervals(score_dict, func, reps, seed):
+    """rliable.library's own stratified bootstrap (percentile), seeded through numpy's global state."""
+    library = pytest.importorskip("rliable.library", reason="rliable.library needs arch<8 with pandas<3")
+    np.random.seed(seed)
+    return library.get_interval_estimates(score_dict, func, reps=reps)
+
+
+@pytest.mark.parametrize("runs", [3, 5, 10])
+def test_run_level_iqm_and_its_interval_equal_rliables(runs):
+    """Run-level score matrices ([runs, tasks], each run its mean over episodes): the point estimate is
+    rliable's exactly, the interval within Monte Carlo error of rliable's own StratifiedBootstrap."""
+    scores = _scores(runs, runs, 2)
+    ours = stratified_bootstrap(iqm, [scores], reps=20000, seed=0)
+    points, intervals = _rliable_intervals({"g": scores}, rliable_metrics.aggregate_iqm, 20000, 0)
+    assert ours["value"] == pytest.approx(points["g"], rel=1e-12)
+    spread = scores.max() - scores.min()
+    assert [ours["ci_low"], ours["ci_high"]] == pytest.approx(np.ravel(intervals["g"]).tolist(), abs=0.03 * spread)
+
+
+def test_run_level_probability_of_improvement_and_its_interval_equal_rliables():
+    x, y = _scores(11, 5, 2, 60.0), _scores(12, 4, 2)
+    ours = stratified_bootstrap(probability_of_improvement, [x, y], reps=20000, seed=0)
+    points, intervals = _rliable_intervals({"x,y": [x, y]}, rliable_metrics.probability_of_improvement, 20000, 0)
+    assert ours["value"] == pytest.approx(points["x,y"], rel=1e-12)
+    assert [ours["ci_low"], ours["ci_high"]] == pytest.approx(np.ravel(intervals["x,y"]).tolist(), abs=0.03)
+
+
+def test_pooling_episodes_as_runs_shrinks_the_interval():
+    """Why the unit matters: 3 runs x 15 episodes whose runs differ; resampling the 45 episodes as if
+    they were runs gives an interval several times narrower than resampling the 3 runs."""
+    rng = np.random.default_rng(5)
+    run_means = np.array([[20.0, 30.0], [45.0, 55.0], [70.0, 60.0]])
+    episodes = run_means[:, None, :] + rng.normal(0, 5, size=(3, 15, 2))
+    by_run = stratified_bootstrap(iqm, [episodes.mean(1)], reps=4000, seed=0)
+    by_episode = stratified_bootstrap(iqm, [episodes.reshape(45, 2)], reps=4000, seed=0)
+    assert by_run["ci_high"] - by_run["ci_low"] > 2 * (by_episode["ci_high"] - by_episode["ci_low"])
+
+
+def test_seed_intervals_stop_at_the_quantitys_bounds():
+    from mop_core.statistics import TAU_BOUNDS, seed_interval
+
+    low = seed_interval([5.0, 90.0, 10.0], (0.0, np.inf))
+    assert low["ci_low"] == 0.0 and low["cut_at_bound"] and low["ci_high"] > 90
+    tau = seed_interval([0.95, 0.99, 0.5], TAU_BOUNDS)
+    assert tau["ci_high"] == 1.0 and tau["cut_at_bound"]
+    assert seed_interval([1.0, 2.0])["ci_low"] is None  # under 3 seeds: no interval
