@@ -89,8 +89,8 @@ class Catalogue:
     teacher_seed: int  # the teacher seed students learn from and cross-task tables show
     teacher_actors: tuple[str, ...]
     shared_teachers: tuple[TeacherRun, ...] = ()  # teachers on relabelled data (data_sharing: DS, OQS)
-    # the state-shift students (thesis 5.2: composed data x width, dataset size). Not eval-stage policies:
-    # the state_shift stage reads their distill runs' final evaluations (n = distill.seeds per point)
+    # the state-shift students (thesis 5.2: composed data x width, dataset size, corrections). The eval
+    # stage rolls them out like every policy; the state_shift stage reads their returns from it
     shift_students: tuple[StudentRun, ...] = ()
 
     def student_batches(self) -> dict[str, list[StudentRun]]:
@@ -133,7 +133,7 @@ class Catalogue:
                          if t.task == task and t.level == level]
         for run in self.multitask:
             jobs += [Job(run.group, run.seed, run.paths.checkpoint, task, task) for task in run.tasks]
-        for run in self.students:
+        for run in self.students + self.shift_students:
             sample = sample_gaussian_students and LOSSES[run.loss].gaussian_student
             jobs += [Job(run.group, run.seed, run.paths.checkpoint, task, task,
                          self.sample_seed(run, task) if sample else None) for task in run.tasks]

@@ -12,6 +12,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from mop_core.data.hdf5 import atomic_path  # noqa: E402
 
+REFERENCE_DASHES = ["--", ":", "-.", (0, (5, 1, 1, 1, 1, 1))]  # band_curves' reference lines, in order
+
 
 def _save(fig, path: str | os.PathLike) -> None:
     """Lay out and write a figure as PNG, atomically; close it."""
@@ -112,38 +114,62 @@ def band_curves(path: str | os.PathLike, panels: Mapping[str, Mapping[str, Mappi
                 references: Mapping[str, Mapping[str, float]], ylabel: str, title: str) -> None:
     """Learning curves as the thesis draws them (Figures 5.1, 5.3, 5.4): one panel per key of
     ``panels``; per label a line ``mean`` over ``step`` with a shaded ``ci_low``..``ci_high`` band
-    where the series has one (several seeds); ``references[panel][label]`` as dashed lines."""
+    where the series has one (several seeds); ``references[panel][label]`` as grey lines, one dash
+    pattern each, named in the legend (text at the line overprints when two references are close)."""
     fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 3.8), squeeze=False)
     for ax, (panel, series) in zip(axes[0], panels.items()):
         for label, s in series.items():
             line, = ax.plot(s["step"], s["mean"], marker="o", markersize=3, label=label)
             if s.get("ci_low") is not None:
                 ax.fill_between(s["step"], s["ci_low"], s["ci_high"], color=line.get_color(), alpha=0.2)
-        for label, value in references.get(panel, {}).items():
-            ax.axhline(value, linestyle="--", linewidth=1, color="grey")
-            ax.annotate(label, (0.01, value), xycoords=("axes fraction", "data"), fontsize=7, color="grey",
-                        va="bottom")
+        for k, (label, value) in enumerate(references.get(panel, {}).items()):
+            ax.axhline(value, linestyle=REFERENCE_DASHES[k % len(REFERENCE_DASHES)], linewidth=1.2,
+                       color="dimgrey", label=label)
         _label(ax, "gradient step", ylabel, panel)
     fig.suptitle(title)
     _save(fig, path)
 
 
+def _dodge_step(dodge: float | None, series: int, categorical: bool, log_x: bool) -> float:
+    """interval_panels' horizontal distance between neighbouring series: ``dodge`` when given, else
+    up to 0.2 categories (all series within 0.6) or 0.1 octaves (within 0.4); 0 on a linear numeric axis."""
+    if dodge is not None:
+        return dodge
+    if series < 2 or not (categorical or log_x):
+        return 0.0
+    cap, spread = (0.2, 0.6) if categorical else (0.1, 0.4)
+    return min(cap, spread / (series - 1))
+
+
+def _dodged(x: float, offset: float, log_x: bool) -> float:
+    """``x`` moved by ``offset``: multiplicatively (offset in octaves) on a log axis, else additively."""
+    return x * 2.0 ** offset if log_x else x + offset
+
+
 def interval_panels(path: str | os.PathLike, panels: Mapping[str, Mapping[str, list[tuple]]], xlabel: str,
-                    ylabels: Mapping[str, str], title: str, log_x: bool = False) -> None:
-    """One panel per entry of ``panels``; in each, one line per series of ``(x, mean, low, high)``
-    points drawn with its interval as error bars (``low``/``high`` None: no bar). Categorical x
-    values (strings) are placed in order. Thesis Figures 6.4 and 6.5."""
+                    ylabels: Mapping[str, str], title: str, log_x: bool = False, dodge: float | None = None) -> None:
+    """One panel per entry of ``panels``; in each, one series of ``(x, mean, low, high)`` points
+    drawn with its interval as error bars (``low``/``high`` None: no bar). Numeric x: each series'
+    points joined by a line. Categorical x (strings): placed in order of first appearance, points
+    with error bars and no connecting line (the categories have no order). Thesis Figures 6.4, 6.5.
+
+    ``dodge`` shifts the k-th of n series by ``(k - (n - 1) / 2) * dodge`` horizontally so that
+    intervals at one x stay apart: in category units for categorical x, in octaves (log2 units) on a
+    log x axis, in data units on a linear numeric axis. None: an automatic dodge for categorical x
+    and log x, none on a linear numeric axis (where x is a measured value, e.g. a KL)."""
     fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 3.6), squeeze=False)
     for ax, (name, series) in zip(axes[0], panels.items()):
-        categories: list = []
-        for points in series.values():
-            categories += [p[0] for p in points if isinstance(p[0], str) and p[0] not in categories]
-        for label, points in series.items():
-            xs = [categories.index(p[0]) if isinstance(p[0], str) else p[0] for p in points]
+        categories = list(dict.fromkeys(p[0] for points in series.values() for p in points if isinstance(p[0], str)))
+        step = _dodge_step(dodge, len(series), bool(categories), log_x)
+        for k, (label, points) in enumerate(series.items()):
+            offset = (k - (len(series) - 1) / 2) * step
+            xs = [_dodged(categories.index(p[0]) if isinstance(p[0], str) else p[0], offset,
+                          log_x and not categories) for p in points]
             means = [p[1] for p in points]
             low = [p[1] - p[2] if p[2] is not None else 0.0 for p in points]
             high = [p[3] - p[1] if p[3] is not None else 0.0 for p in points]
-            ax.errorbar(xs, means, yerr=[low, high], marker="o", capsize=3, label=label)
+            ax.errorbar(xs, means, yerr=[low, high], marker="o", capsize=3, label=label,
+                        linestyle="none" if categories else "-")
         if categories:
             ax.set_xticks(range(len(categories)), categories, fontsize=8)
         if log_x and not categories:

@@ -191,9 +191,12 @@ def header(results: StudyResults) -> str:
              "**Intervals.** Every eval interval is a Student-t 95% interval and says its unit and n: over the "
              "evaluation episodes of one trained policy (evaluation noise only: it says nothing about another "
              "training seed), over the pooled episodes of a group with fewer than 3 training seeds (the seed means "
-             "are listed beside it), or over the means of >= 3 training seeds. Aggregates (section 6) are "
-             "stratified-bootstrap intervals over runs x episodes. Learning-curve bands are over training seeds "
-             "and drawn only with >= 3 seeds.", ""]
+             "are listed beside it), or over the means of >= 3 training seeds; a quantity that cannot be negative "
+             "(a return, a squared error) has its interval cut at 0 and marked where the t-interval of 3 seeds "
+             "reaches below (too few runs for it). Aggregates (section 6) are rliable's: each run scored by its mean "
+             "over its episodes, stratified-bootstrap intervals over runs, none under 3 runs. Learning-curve bands "
+             "are over training seeds and drawn only with >= 3 seeds. Every return shown for a policy is the eval "
+             "stage's.", ""]
     lines += ["Stage times are in results/timings/ (`python -m mop_core.timings` prints the table), not here: "
               "a rerun that reproduces the results leaves this report unchanged.", ""]
     return "\n".join(lines)
@@ -273,6 +276,7 @@ def multitask_section(results: StudyResults, figure_dir: Path, link_prefix: str)
         return "\n".join(out + [not_run("the train_multitask stage", "Set train_multitask.levels and run "
                                         "`dvc repro train_multitask`."), ""])
     panels: dict = {task: {} for task in results.tasks}
+    references: dict = {task: {} for task in results.tasks}
     rows, drawn = [], []
     for (level,), runs in group_runs(results.multitask, "level").items():
         teachers = group_runs(results.teachers, "task", "level", "actor")
@@ -288,14 +292,19 @@ def multitask_section(results: StudyResults, figure_dir: Path, link_prefix: str)
                 drawn.append(single)
             mt = eval_entry(results, task, multitask_group(level))
             st = eval_entry(results, task, teacher_group(level, "deterministic"))
+            for label, entry in ((f"multi-task {level}, eval stage", mt), (f"single-task {level}, eval stage", st)):
+                if entry:
+                    references[task][label] = entry["mean"]
             rows.append([task, level, fmt_ci(mt), fmt_ci(st), fmt_normalised(mt), fmt_normalised(st),
                          fmt(mt["mean"] / st["mean"], 2) if mt and st else "n/a"])
     name = "multitask.png"
-    band_curves(figure_dir / name, panels, {}, "episode return",
-                "naive multi-task PBRL (one actor) vs single-task PBRL")
+    band_curves(figure_dir / name, panels, references, "episode return",
+                "naive multi-task PBRL (one actor) vs single-task PBRL (grey: eval-stage means)")
     out += [f"![multitask]({link_prefix}{name})", "",
             f"{curve_caption(drawn)}. Both are drawn against gradient steps per task: a step of the multi-task "
-            "agent is one update of each task's critic (and of the shared actor for each task in turn).", "",
+            "agent is one update of each task's critic (and of the shared actor for each task in turn). The curves' "
+            "points are the training runs' own evaluations (a few episodes each); the grey lines and the table are "
+            "the eval stage's (more episodes, common seeds), which is where the two are compared.", "",
             table(["task", "level", "multi-task eval [95% CI]", "single-task teacher eval [95% CI]",
                    "multi-task normalised", "teacher normalised", "multi / single"], rows), "",
             ci_caption([eval_entry(results, r[0], multitask_group(r[1])) for r in rows]
@@ -407,10 +416,10 @@ def losses_section(results: StudyResults, figure_dir: Path, link_prefix: str) ->
         rows += student_rows(results, loss, pairing, runs)
     name = "losses.png"
     band_curves(figure_dir / name, panels, references, "episode return",
-                "students by distillation loss (dashed: teacher eval mean)")
+                "students by distillation loss (grey lines: teacher eval means)")
     out += [f"![losses]({link_prefix}{name})", "",
             f"{curve_caption(list(student_groups.values()))}; MSE and Q distil the deterministic "
-            "teachers, KL the Gaussian ones. Dashed: each teacher's eval-stage mean.", "",
+            "teachers, KL the Gaussian ones. Grey lines: each teacher's eval-stage mean (named in the legend).", "",
             table(STUDENT_HEADER, rows), "", student_caption(results, rows), kl_rule_text(results), ""]
     return "\n".join(out)
 
@@ -432,21 +441,36 @@ def pairings_section(results: StudyResults) -> str:
     return "\n".join(out)
 
 
+def fmt_aggregate(a: Mapping, digits: int = 1) -> str:
+    """``value [low, high]``, or the value with why there is no interval."""
+    if a.get("ci_low") is None:
+        return f"{fmt(a['value'], digits)} (no interval: fewer than 3 runs)"
+    return f"{fmt(a['value'], digits)} [{fmt(a['ci_low'], digits)}, {fmt(a['ci_high'], digits)}]"
+
+
 def aggregate_section(results: StudyResults) -> str:
     out = ["## 6. Aggregate scores: IQM and probability of improvement (rliable)", ""]
     aggregate = (results.evaluation or {}).get("aggregate")
     if not aggregate:
         return "\n".join(out + [not_run("the eval stage's aggregates", "Run `dvc repro eval`."), ""])
-    rows = [[group, a["tasks"], a["samples_per_task"],
-             f"{fmt(a['value'])} [{fmt(a['ci_low'])}, {fmt(a['ci_high'])}]"]
+    rows = [[group, a["tasks"], a["runs_per_task"], fmt_aggregate(a)]
             for group, a in aggregate["iqm_normalised"].items()]
-    out += [table(["policy group", "tasks", "samples per task (runs x episodes)", "IQM normalised score [95% CI]"],
-                  rows), ""]
-    rows = [[name.split("_vs_")[0], name.split("_vs_")[1], f"{a['samples_x']} x {a['samples_y']}",
-             f"{fmt(a['value'], 2)} [{fmt(a['ci_low'], 2)}, {fmt(a['ci_high'], 2)}]"]
+    out += [table(["policy group", "tasks", "runs per task", "IQM normalised score [95% CI over runs]"], rows), ""]
+    rows = [[name.split("_vs_")[0], name.split("_vs_")[1], f"{a['runs_x']} x {a['runs_y']}", fmt_aggregate(a, 2)]
             for name, a in aggregate["probability_of_improvement"].items()]
-    out += [table(["X", "Y", "samples per task (X x Y)", "P(X > Y) [95% CI]"], rows), "", aggregate["note"],
-            "P = 0.5: neither is better; an interval that excludes 0.5 is a difference at the 95% level.", ""]
+    out += [table(["X", "Y", "runs per task (X x Y)", "P(X > Y) [95% CI over runs]"], rows), ""]
+    paired = aggregate.get("paired_difference", {})
+    if paired:
+        rows = [[name.split("_vs_")[0], name.split("_vs_")[1], a["seeds"],
+                 f"{fmt(a['mean'])} [{fmt(a['ci_low'])}, {fmt(a['ci_high'])}] (n={a['n']} seeds)"
+                 if a["ci_low"] is not None else f"{fmt(a['mean'])} (n={a['n']} seeds: no interval)"]
+                for name, a in paired.items()]
+        out += [table(["X", "Y", "paired seeds", "X - Y, normalised points, mean over tasks [95% CI over seeds]"],
+                      rows), ""]
+    out += [aggregate["note"],
+            "P = 0.5: neither is better. With 3 runs a side the bootstrap has few distinct resamples and its "
+            "interval is coarse; the paired differences (same seeds: same initialisation and data stream) are the "
+            "sharper test, and the verdict table uses them.", ""]
     return "\n".join(out)
 
 
@@ -601,12 +625,14 @@ TRANSFER_NOTES = {
 
 
 def render_report(results: StudyResults, figure_dir: Path, link_prefix: str,
-                  later_sections: Sequence[str] = (), shift_sections: Sequence[str] = ()) -> str:
+                  later_sections: Sequence[str] = (), shift_sections: Sequence[str] = (), opening: str = "") -> str:
     """The report's Markdown; draws its own figures into ``figure_dir`` (linked as ``link_prefix`` +
-    file name). ``later_sections`` (Markdown, e.g. mop_core.report_structure's) follow section 7,
+    file name). ``opening`` (mop_core.report_verdicts': the scale and the verdict table) follows the
+    header; ``later_sections`` (Markdown, e.g. mop_core.report_structure's) follow section 7,
     ``shift_sections`` (mop_core.report_shift's, thesis 5.2) the distillation losses (section 4)."""
     figure_dir.mkdir(parents=True, exist_ok=True)
-    sections = [header(results), behaviour_section(results), teachers_section(results, figure_dir, link_prefix),
+    sections = [header(results), *([opening] if opening else []), behaviour_section(results),
+                teachers_section(results, figure_dir, link_prefix),
                 multitask_section(results, figure_dir, link_prefix), losses_section(results, figure_dir, link_prefix),
                 *shift_sections, pairings_section(results), aggregate_section(results), shared_section(results),
                 *later_sections, cross_task_section(results)]
@@ -634,7 +660,10 @@ def settings(params: Mapping[str, Any]) -> dict:
     """The header's budgets (the params' values)."""
     collect, teachers = params["collect"]["schedule"], params["train_teachers"]
     distill, evaluation = params["distill"], params["eval"]
-    summary = (f"collect {collect['total_steps']} TD3 gradient steps per task (medium at {collect['medium_step']}); "
+    medium = (f"medium at {collect['medium_step']}" if not collect.get("medium_target_return") else
+              "medium: the first evaluation at or above the published medium return, else the best one; each task's "
+              "step in section 1")
+    summary = (f"collect {collect['total_steps']} TD3 gradient steps per task ({medium}); "
                f"PBRL teachers {teachers['schedule']['steps']} steps, seeds {teachers['seeds']}; students "
                f"{distill['schedule']['steps']} steps, seeds {distill['seeds']}; eval {evaluation['episodes']} "
                "episodes per policy and task")
@@ -643,7 +672,13 @@ def settings(params: Mapping[str, Any]) -> dict:
             "teacher_seed": distill["teacher_seed"], "snapshot_eval_episodes": collect.get("snapshot_eval_episodes"),
             "student_width": hidden[0] if hidden and len(set(hidden)) == 1 else "plain",
             "ranking": dict(distill.get("ranking", {})),
-            "structure_pairing": params.get("common_structure", {}).get("pairing")}
+            "structure_pairing": params.get("common_structure", {}).get("pairing"),
+            # the study grid the verdicts (mop_core.findings) look their groups up in
+            "widths": list(params.get("common_structure", {}).get("widths", [])),
+            "ranking_losses": list(params.get("common_structure", {}).get("ranking_losses", [])),
+            "single_task": list(params.get("common_structure", {}).get("single_task", [])),
+            "shift_widths": list(params.get("state_shift", {}).get("widths", [])),
+            "shift_datasets": list(params.get("state_shift", {}).get("datasets", []))}
 
 
 def load_results(catalogue: Catalogue, params: Mapping[str, Any]) -> StudyResults:

@@ -4,8 +4,9 @@ OQS candidate teacher gave the label; the same on each substitute's task set ({s
 data_sharing.substitutes, the thesis's recommended movement penalty, 6.4.5 / 7.3).
 
 Returns are the eval stage's (a teacher trained once: interval over its episodes; a student group:
-over its training seeds, n in each cell). Tau is the shared_computation stage's per-state tau
-(mean +- sd over states, averaged over the group's students), the measure of the thesis's Table 6.2.
+over its training seeds, n in each cell). Tau is the shared_computation stage's: the average tau
+(the measure of the thesis's Table 6.2, 6.2.3) beside the thesis's values, and per-state tau in a
+column of its own.
 """
 
 from __future__ import annotations
@@ -144,12 +145,17 @@ def returns_lines(results: StudyResults, levels: Sequence[str], figure: Path, li
             "target'). DS and OQS students learn on the union of the tasks' datasets.", ""]
 
 
-def seed_tau(shared: dict, summary: dict, pair: str, layer: str, variant: str) -> str:
-    """The group's per-state tau: mean over its students [95% CI over them] (no interval under 3)."""
-    values = [shared["students"][name]["pairs"][pair][layer][f"per_state_tau_{variant}"]["mean"]
-              for name in summary.get("members", []) if name in shared.get("students", {})]
+def seed_tau(shared: dict, summary: dict, pair: str, layer: str, key: str) -> str:
+    """The group's tau ``key`` (``average_tau_a``, ``per_state_tau_a``, ...): mean over its students
+    [95% CI over them] (no interval under 3)."""
+    values = []
+    for name in summary.get("members", []):
+        cell = shared.get("students", {}).get(name, {}).get("pairs", {}).get(pair, {}).get(layer, {}).get(key)
+        if cell is not None:
+            values.append(cell["mean"] if isinstance(cell, dict) else cell)
     if not values:
-        return fmt(summary["pairs"][pair][layer][f"per_state_tau_{variant}_mean"], 3)
+        row = summary["pairs"][pair][layer]
+        return fmt(row.get(key, row.get(f"{key}_mean")), 3)
     return fmt_interval(seed_interval(values))
 
 
@@ -173,21 +179,27 @@ def tau_lines(results: StudyResults, levels: Sequence[str], sets: Sequence[TaskS
                     for index, (layer, row) in enumerate(layers.items()):
                         reference = fmt(thesis[index], 3) if thesis and index < len(thesis) else "n/a"
                         rows.append([level, label, pair, layer.removeprefix("layer"),
-                                     seed_tau(shared, summary, pair, layer, "a"), fmt(row["per_state_tau_a_sd"], 3),
-                                     seed_tau(shared, summary, pair, layer, "b"),
-                                     fmt(row.get("selectivity_mean"), 3), reference, summary["students"]])
+                                     seed_tau(shared, summary, pair, layer, "average_tau_a"), reference,
+                                     seed_tau(shared, summary, pair, layer, "per_state_tau_a"),
+                                     fmt(row["per_state_tau_a_sd"], 3),
+                                     seed_tau(shared, summary, pair, layer, "per_state_tau_b"),
+                                     fmt(row.get("selectivity_mean"), 3), summary["students"]])
     if not rows:
         return [not_run("Table 6.2", "It needs the shared_computation stage (`dvc repro shared_computation`)."), ""]
-    return [table(["level", "students", "task pair", "layer", "per-state tau-a [95% CI over students]",
-                   "sd over states", "per-state tau-b [95% CI]", "task selectivity", "thesis tau-a", "students"],
-                  rows), "",
-            "Table 6.2: per-state Kendall tau between a layer's activations under the two task ids on the states "
-            "the students visit (section 7's measure): per student the mean over its states; the cell is the mean "
-            "over the group's students (training seeds) with a Student-t 95% interval over them (n in the last "
-            "column; none under 3), next to the sd over one student's states. tau-a is the thesis's formula. Task "
-            "selectivity: the mean share of a neuron's activation variance explained by the task id (section 7). "
-            "'no sharing': per seed, the two single-task students as if they were one student's two ids (section "
-            "7's null). Thesis column: its Table 6.2 (one seed, walk x stand).", ""]
+    return [table(["level", "students", "task pair", "layer", "average tau-a [95% CI over students]",
+                   "thesis Table 6.2 (average tau-a)", "per-state tau-a [95% CI] (not Table 6.2's measure)",
+                   "sd over states", "per-state tau-b [95% CI]", "task selectivity", "students"], rows), "",
+            "Table 6.2: Kendall tau between a layer's activations under the two task ids on the states the "
+            "students visit. The thesis's measure (6.2.3: average activations 'unless explicitly noted'; its Table "
+            "6.2 carries no note, and its MOP row has the average measure's layer order) is the average tau: tau "
+            "between each task's mean activations over its own states, so the thesis column sits beside it. "
+            "Per-state tau (section 7's first measure: per state, then averaged over states) is a different number "
+            "and has its own column. Each cell: the mean over the group's students (training seeds) with a "
+            "Student-t 95% interval over them (n in the last column; none under 3; cut at tau's bounds); sd over "
+            "states: one student's spread of per-state tau. tau-a is the thesis's formula. Task selectivity: the "
+            "mean share of a neuron's activation variance explained by the task id (section 7). 'no sharing': per "
+            "seed, the two single-task students as if they were one student's two ids (section 7's null). Thesis "
+            "column: its Table 6.2 (one seed, walk x stand).", ""]
 
 
 def q_switch_lines(results: StudyResults, levels: Sequence[str], sets: Sequence[TaskSet] = ()) -> list[str]:
@@ -232,10 +244,11 @@ def sharing_section(results: StudyResults, figure_dir: Path, link_prefix: str) -
                                         "`students` and run `dvc repro`."), ""])
     sets = task_sets(results)
     out += returns_lines(results, levels, figure_dir / "sharing.png", f"{link_prefix}sharing.png", sets[0])
-    out += ["Thesis (Figure 6.9, medium): the DS teacher beats MOP's on stand and matches it on walk, and the DS "
-            "student is the best student; OQS's cross-task teacher is good at standing from walk data and poor at "
-            "walking from stand data; the OQS student stays below its best teacher, which the thesis attributes to "
-            "uncoordinated Q scales (the 'target critic' rows test that); tau rises MOP < DS < OQS (Table 6.2).", ""]
+    out += ["What the thesis claims of these rows (6.4.4, Figure 6.9, Table 6.2) and whether this run reproduces "
+            "it: the verdict table at the top (ds_teacher_better_on_stand, ds_teacher_matches_on_walk, "
+            "ds_student_replicates_teacher, ds_student_best, ds_raises_tau, oqs_highest_tau, table_6_2_*, "
+            "oqs_data_teacher_*, oqs_student_below_best_teacher, oqs_student_worse). The 'target critic' rows "
+            "test the thesis's explanation of OQS (uncoordinated Q scales).", ""]
     for task_set in sets[1:]:
         name = f"sharing_{task_set.substitute}.png"
         base = task_set.data[task_set.tasks.index(task_set.substitute)]

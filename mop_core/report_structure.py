@@ -16,16 +16,18 @@ from typing import Sequence
 from mop_core.plots import interval_panels
 from mop_core.report import Run, StudyResults, eval_entry, fmt, fmt_ci, fmt_normalised, not_run, table
 from mop_core.runs import RANKING_PREFIX, WIDTH_PREFIX, student_group, student_recipe
-from mop_core.statistics import MIN_SEEDS_FOR_SEED_CI, confidence_interval
+from mop_core.statistics import MIN_SEEDS_FOR_SEED_CI, TAU_BOUNDS
+from mop_core.statistics import seed_interval as interval_over_seeds
 
 TAU_VARIANT = "a"  # the thesis's formula (6.2.2); tau-b is in the shared computation section
+PROBE_STATES = {"offline": "offline dataset states", "visited": "states the student visited"}  # distill.probe_source
 
 
-def seed_interval(values: Sequence[float]) -> tuple[float, float | None, float | None]:
-    """(mean, low, high) over training seeds; no interval under MIN_SEEDS_FOR_SEED_CI seeds."""
-    ci = confidence_interval(values)
-    if len(values) < MIN_SEEDS_FOR_SEED_CI:
-        return ci["mean"], None, None
+def seed_interval(values: Sequence[float], bounds: tuple[float, float] | None = TAU_BOUNDS
+                  ) -> tuple[float, float | None, float | None]:
+    """(mean, low, high) over training seeds (mop_core.statistics.seed_interval: none under
+    MIN_SEEDS_FOR_SEED_CI seeds; cut at ``bounds``, a tau's [-1, 1] by default)."""
+    ci = interval_over_seeds(values, bounds)
     return ci["mean"], ci["ci_low"], ci["ci_high"]
 
 
@@ -79,9 +81,13 @@ def comparison(results: StudyResults, rows: Sequence[tuple[object, str, Sequence
     for task in results.tasks:
         header += [f"return on {task} [95% CI]", f"{task} normalised"]
     header += [f"per-state tau-{TAU_VARIANT} layer {layer} [95% CI]" for layer in layers]
-    interval_panels(figure, {"return": returns, "per-state tau": taus}, xlabel,
-                    {"return": "episode return (eval stage)", "per-state tau": f"final per-state tau-{TAU_VARIANT}"},
-                    title, log_x)
+    sources = sorted({r.metrics["per_state_tau"].get("probe_source", "offline") for _, _, runs in rows
+                      for r in runs if r.metrics.get("per_state_tau")})
+    tau_panel = "per-state tau on probe states" + (f" ({', '.join(PROBE_STATES.get(s, s) for s in sources)})"
+                                                   if sources else "")
+    interval_panels(figure, {"return": returns, tau_panel: taus}, xlabel,
+                    {"return": "episode return (eval stage)",
+                     tau_panel: f"final per-state tau-{TAU_VARIANT} on probe states"}, title, log_x)
     return [f"![{title}]({link})", "", table(header, table_rows), ""]
 
 
@@ -129,8 +135,9 @@ def structure_section(results: StudyResults, figure_dir: Path, link_prefix: str)
     out += ["Returns: eval stage, mean over training seeds with the Student-t 95% interval over those seeds "
             "(cells give n). Per-state tau: each student's final value on the distill stage's probe states "
             "(the same offline states for every student of the pairing), mean [Student-t 95% interval] over "
-            f"seeds (none under {MIN_SEEDS_FOR_SEED_CI} seeds). Thesis (one seed per point): narrower students "
-            "lose return and per-state tau together; the pairwise loss raises tau at a cost in return, "
-            "listwise raises layer 1's tau and lowers layer 2's, NDCG changes nothing.", ""]
+            f"seeds (none under {MIN_SEEDS_FOR_SEED_CI} seeds). What the thesis claims of these groups (6.3.1, "
+            "6.3.2) and whether this run reproduces it: the verdict table at the top (width_degrades_return, "
+            "width_degrades_tau, pairwise_highest_tau, pairwise_costs_return, ndcg_no_effect, "
+            "listwise_raises_layer1_tau, listwise_keeps_return, listwise_layer2_at_baseline).", ""]
     return "\n".join(out)
 

@@ -240,7 +240,7 @@ def summarise_students(records: Sequence[dict]) -> dict:
             for key, vals in values.items():
                 if vals:
                     row[key] = float(np.mean(vals))
-                    row[f"{key}_seed_sd"] = float(np.std(vals))
+                    row[f"{key}_seed_sd"] = float(np.std(vals, ddof=1)) if len(vals) > 1 else 0.0  # sample sd
             out[layer] = row
         summary["pairs"][pair] = out
     return summary

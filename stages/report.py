@@ -4,37 +4,49 @@
 
 Reads only what the other stages wrote under results/ (metrics JSON, learning-curve TSVs, figures)
 for the runs of the study's catalogue; a missing file means that part of the study was not run, and
-its section says so. Writes results/report.md, results/report/*.png and results/metrics.json (the
-headline numbers: mop_core/headline.py).
+its section says so. The report opens with this profile's scale beside the thesis's (profiles/thesis.yaml)
+and the verdict of every finding (mop_core/findings.py). Writes results/report.md, results/report/*.png,
+results/verdicts.json (verdicts and their effects) and results/metrics.json (the headline numbers:
+mop_core/headline.py).
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 from common import load_params, run_stage
 
 from mop_core.catalogue import build_catalogue
 from mop_core.data import atomic_path, write_json
+from mop_core.evidence import Evidence
 from mop_core.headline import headline_metrics
 from mop_core.layout import HEADLINE_METRICS, RESULTS
 from mop_core.report import load_results, read_optional, render_report
 from mop_core.report_sharing import sharing_section
 from mop_core.report_shift import shift_section
 from mop_core.report_structure import structure_section
+from mop_core.report_verdicts import decide, verdict_record, verdict_section
 
 REPORT = RESULTS / "report.md"
 FIGURES = RESULTS / "report"
+VERDICTS = RESULTS / "verdicts.json"
+THESIS_PROFILE = Path("profiles/thesis.yaml")  # the thesis's scale, beside this run's in the report's header
 
 
 def main() -> None:
     params = load_params()
+    thesis = load_params(THESIS_PROFILE)
     results = load_results(build_catalogue(params), params)
+    shift_metrics = read_optional(RESULTS / "state_shift" / "metrics.json")
+    decisions = decide(Evidence(results, shift_metrics))
     prefix = FIGURES.relative_to(RESULTS).as_posix() + "/"
     later = [structure_section(results, FIGURES, prefix), sharing_section(results, FIGURES, prefix)]
-    shift = shift_section(read_optional(RESULTS / "state_shift" / "metrics.json"),
-                          read_optional(RESULTS / "compose" / "metrics.json"), results.tasks, "state_shift/figures/")
-    markdown = render_report(results, FIGURES, prefix, later, [shift])
+    shift = shift_section(shift_metrics, read_optional(RESULTS / "compose" / "metrics.json"), results.tasks,
+                          "state_shift/figures/")
+    markdown = render_report(results, FIGURES, prefix, later, [shift], verdict_section(decisions, params, thesis))
     with atomic_path(REPORT) as tmp:
         tmp.write_text(markdown)
+    write_json(VERDICTS, verdict_record(decisions))
     write_json(HEADLINE_METRICS, headline_metrics(results.evaluation, results.shared, results.tasks))
     print(f"report: wrote {REPORT} ({len(markdown.splitlines())} lines) and {FIGURES}/")
 

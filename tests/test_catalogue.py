@@ -134,6 +134,8 @@ def test_eval_jobs_cover_every_policy_and_the_cross_task_teachers(plain_catalogu
     for recipe in ("mse-w8", "mse-rank_pairwise"):
         checkpoint = Path(f"data/students/{recipe}-medium/{recipe}-medium-0.pt")
         expected += [Job(f"student_{recipe}_medium", 0, checkpoint, task, task) for task in TASKS]
+    for student in plain_catalogue.shift_students:  # the state-shift students: every return is the eval stage's
+        expected += [Job(student.group, student.seed, student.paths.checkpoint, task, task) for task in TASKS]
     assert plain_catalogue.eval_jobs() == expected
     assert plain_catalogue.cross_task_teachers() == [TeacherRun("stand", "medium", "deterministic", 0),
                                                TeacherRun("walk", "medium", "deterministic", 0)]

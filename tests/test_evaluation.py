@@ -96,7 +96,8 @@ def test_iqm_and_improvement_summaries_name_their_unit_and_sizes():
     bad = {"stand": rng.normal(30, 10, 15), "walk": rng.normal(10, 10, 15)}
     summary = iqm_summary(good, reps=200, seed=0)
     assert summary["tasks"] == "stand, walk" and summary["runs_per_task"] == 30
-    assert summary["ci_low"] < summary["value"] < summary["ci_high"] and summary["ci_unit"] == "runs, stratified by task"
+    assert summary["ci_low"] < summary["value"] < summary["ci_high"]
+    assert summary["ci_unit"] == "runs, stratified by task"
     better = improvement_summary(good, bad, reps=200, seed=0)
     assert (better["runs_x"], better["runs_y"]) == (30, 15) and better["ci_low"] > 0.5
     with pytest.raises(ValueError, match="same number of runs per task"):

@@ -52,11 +52,18 @@ def _full_results() -> StudyResults:
     evaluation["normalisation"] = {t: {"random_return": 130.0, "random_episodes": 100, "expert_return": 986.8,
                                        "expert_source": "UTDS task.json"} for t in TASKS}
     interval = {"value": 41.5, "ci_low": 38.2, "ci_high": 44.9, "reps": 2000, "tasks": "stand, walk",
-                "samples_per_task": 60, "ci_unit": "runs x episodes, stratified by task"}
+                "runs_per_task": 3, "ci_unit": "runs, stratified by task"}
     evaluation["aggregate"] = {
-        "iqm_normalised": {"student_mse_medium": interval},
-        "probability_of_improvement": {"student_mse_medium_vs_teachers": interval | {
-            "value": 0.61, "ci_low": 0.52, "ci_high": 0.7, "samples_x": 60, "samples_y": 30}},
+        "iqm_normalised": {"student_mse_medium": interval,
+                           "teacher_medium_deterministic": interval | {"ci_low": None, "ci_high": None,
+                                                                      "runs_per_task": 1, "value": 33.3}},
+        "probability_of_improvement": {
+            "student_mse_medium_vs_teachers": interval | {"value": 1.0, "ci_low": None, "ci_high": None, "runs_x": 2,
+                                                          "runs_y": 1},
+            "student_mse_medium_vs_student_q_medium": interval | {"value": 0.61, "ci_low": 0.52, "ci_high": 0.7,
+                                                                  "runs_x": 3, "runs_y": 3}},
+        "paired_difference": {"student_mse_medium_vs_student_q_medium": {
+            "mean": 12.5, "ci_low": 2.5, "ci_high": 22.5, "n": 3, "seeds": "0, 1, 2", "ci_unit": "paired_seed"}},
         "note": "IQM note"}
     def cross(mean):
         return {"mean": mean, "ci_low": mean - 10, "ci_high": mean + 10, "n": 20, "ci_unit": "episode"}
@@ -108,7 +115,10 @@ def test_report_shows_the_runs_numbers_in_thesis_order_and_draws_the_figures_it_
     assert "medium stand_still: the stand teacher (380.2)" in markdown
     assert "the walk teacher (205.1)" in markdown
     assert "1.05" in markdown  # student / teacher = 426.1 / 404.55
-    assert "41.5 [38.2, 44.9]" in markdown and "0.61 [0.52, 0.70]" in markdown  # IQM and P(X > Y)
+    assert "41.5 [38.2, 44.9]" in markdown and "0.61 [0.52, 0.70]" in markdown  # IQM and P(X > Y) over runs
+    assert "| teacher_medium_deterministic | stand, walk | 1 | 33.3 (no interval: fewer than 3 runs) |" in markdown
+    assert "| student_mse_medium | teachers | 2 x 1 | 1.00 (no interval: fewer than 3 runs) |" in markdown
+    assert "| student_mse_medium | student_q_medium | 0, 1, 2 | 12.5 [2.5, 22.5] (n=3 seeds) |" in markdown
     assert "R_random 130.0 (100 uniformly random episodes" in markdown
     assert "pooled over 2 training seeds" in markdown and "evaluation episodes of one trained policy" in markdown
     assert "KL students act by their mean" in markdown and "tau-a" in markdown
@@ -181,11 +191,14 @@ def test_the_data_sharing_section_shows_figure_6_9_table_6_2_and_the_q_switch_sh
     assert "| medium | walk | OQS teacher on D_stand->walk | 300.0" in markdown
     assert "| medium | stand | DS student | 480.0 [470.0, 490.0] (n=3 seeds)" in markdown
     # without member records the group mean alone; with them, a t-interval over the students
-    assert "| medium | DS | stand-walk | 1 | 0.610 | 0.101 | 0.617 | 0.081 | 0.520 | 3 |" in markdown
-    assert "| medium | DS | stand-walk | 2 | 0.720 | 0.101 | 0.617 | 0.081 | 0.670 | 3 |" in markdown
-    assert "| medium | MOP | stand-walk | 1 | 0.452 | 0.101 | 0.617 | 0.081 | 0.067 | 2 |" in markdown
+    # Table 6.2: the average tau (the thesis's measure, 6.2.3) beside the thesis's value, per-state tau apart
+    assert "| medium | DS | stand-walk | 1 | -0.011 | 0.520 | 0.610 | 0.101 | 0.617 | 0.081 | 3 |" in markdown
+    assert "| medium | DS | stand-walk | 2 | -0.011 | 0.670 | 0.720 | 0.101 | 0.617 | 0.081 | 3 |" in markdown
+    assert "| medium | MOP | stand-walk | 1 | -0.011 | 0.067 | 0.452 | 0.101 | 0.617 | 0.081 | 2 |" in markdown
+    assert "thesis Table 6.2 (average tau-a)" in markdown and "not Table 6.2's measure" in markdown
     students = {f"mse-ds-medium-{seed}": {"pairs": {"stand-walk": {
-        layer: {"per_state_tau_a": {"mean": tau_a}, "per_state_tau_b": {"mean": tau_a + 0.1}}
+        layer: {"per_state_tau_a": {"mean": tau_a}, "per_state_tau_b": {"mean": tau_a + 0.1},
+                "average_tau_a": tau_a - 0.4}
         for layer in ("layer1", "layer2")}}} for seed, tau_a in enumerate((0.5, 0.6, 0.7))}
     results.shared["students"] = students
     results.shared["groups"]["mse-ds_medium"]["members"] = list(students)
@@ -193,9 +206,10 @@ def test_the_data_sharing_section_shows_figure_6_9_table_6_2_and_the_q_switch_sh
         "stand-walk": {"layer1": layer | {"per_state_tau_a_mean": 0.05}}}}
     markdown = sharing_section(results, tmp_path / "fig", "fig/")
     half = 0.1 * 4.302652729911275 / 3 ** 0.5  # t(0.975, 2) * sd / sqrt(3)
-    assert (f"| medium | DS | stand-walk | 1 | 0.600 [{0.6 - half:.3f}, {0.6 + half:.3f}] | 0.101 | "
-            f"0.700 [{0.7 - half:.3f}, {0.7 + half:.3f}] | 0.081 | 0.520 | 3 |") in markdown
-    assert "| medium | no sharing (single-task students) | stand-walk | 1 | 0.050 | 0.101 |" in markdown
+    assert (f"| medium | DS | stand-walk | 1 | 0.200 [{0.2 - half:.3f}, {0.2 + half:.3f}] | 0.520 | "
+            f"0.600 [{0.6 - half:.3f}, {0.6 + half:.3f}] | 0.101 | "
+            f"0.700 [{0.7 - half:.3f}, {0.7 + half:.3f}] | 0.081 | 3 |") in markdown
+    assert "| medium | no sharing (single-task students) | stand-walk | 1 | -0.011 | n/a | 0.050 | 0.101 |" in markdown
     assert "| medium | OQS (own critics) | stand | D_stand->stand: 0.700, D_walk->stand: 0.300 |" in markdown
     empty = sharing_section(_full_results(), tmp_path / "fig", "fig/")
     assert "Not part of this run: the data-sharing students" in empty
@@ -227,7 +241,7 @@ def test_the_sharing_section_repeats_figure_6_9_and_table_6_2_on_a_substitutes_t
     assert "| medium | stand_still | OQS teacher on D_walk->stand_still | 60.0" in second and "| 0.10 |" in second
     assert "| medium | stand_still | MOP student | 540.0 [530.0, 550.0] (n=3 seeds)" in second
     assert "| medium | walk | MOP student | 450.0" in second
-    assert "| medium | OQS (own critics) | stand_still-walk | 1 | 0.330 |" in markdown  # Table 6.2, no thesis value
+    assert "| medium | OQS (own critics) | stand_still-walk | 1 | -0.011 | n/a | 0.330 |" in markdown  # no thesis value
     assert "| medium | OQS (own critics) | stand_still | D_stand->stand_still: 0.400, D_walk->stand_still: 0.600 |" \
         in markdown
     from mop_core.report import cross_task_section

@@ -1,0 +1,544 @@
+"""The findings the report decides: every testable claim of the thesis (chapters 5.1, 5.2, 6.2, 6.3,
+6.4 and Table 6.3) and this study's own, each a typed :class:`Finding` registered in one table.
+
+A finding quotes its claim (the thesis's words, with the line of shared/reference/mop-thesis.txt it
+stands on), says which statistic tests it, in which direction (:class:`mop_core.verdicts.Claim`), and
+measures it on a run (:class:`mop_core.evidence.Evidence` -> :class:`mop_core.verdicts.Effect` cells);
+mop_core.verdicts turns the cells into reproduced / contradicted / inconclusive. Returns are in
+normalised points (100 = published expert, 0 = random); a "matches" claim holds within
+:data:`RETURN_MARGIN` points, a tau equality within :data:`TAU_MARGIN`.
+
+Adding a finding: write its measure (a function of Evidence returning Effects) and ``register`` it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+from scipy.stats import spearmanr
+
+from mop_core.evidence import Evidence
+from mop_core.statistics import TAU_BOUNDS, seed_interval
+from mop_core.verdicts import (
+    ABOVE,
+    BELOW,
+    Claim,
+    Effect,
+    equal_within,
+    not_run,
+    paired,
+    single_runs,
+    versus_constant,
+    versus_run,
+)
+
+RETURN_MARGIN = 10.0  # normalised points: "matches" = within 10% of the expert-random range
+TAU_MARGIN = 0.1  # Kendall tau: "a level similar to", "0.067" = within 0.1
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One claim and how this study tests it."""
+
+    key: str
+    section: str  # thesis section / figure / table ("this run" for the study's own findings)
+    claim: str  # quoted: the thesis's words, or this study's statement
+    line: int | None  # the claim's line in shared/reference/mop-thesis.txt (None: the study's own)
+    statistic: str  # what is measured, in words (the effect's sign convention)
+    expects: Claim
+    measure: Callable[[Evidence], list[Effect]]
+    every_cell: bool = True  # the claim holds on every cell (task, layer): one contradicted cell contradicts it
+    levels: tuple[str, ...] = ("medium",)  # the dataset levels it needs
+
+    @property
+    def own(self) -> bool:
+        return self.line is None
+
+
+FINDINGS: dict[str, Finding] = {}
+
+
+def register(finding: Finding) -> Finding:
+    if finding.key in FINDINGS:
+        raise ValueError(f"finding {finding.key!r} is registered twice")
+    FINDINGS[finding.key] = finding
+    return finding
+
+
+# ---- measures -----------------------------------------------------------------------------------
+def student_vs_student(x: str, y: str, per_task: bool = True, tasks: Sequence[str] | None = None,
+                       losses: tuple[str, str] = ("mse", "mse")) -> Callable[[Evidence], list[Effect]]:
+    """Student variants x - y (normalised return; of ``losses``), paired by seed: per task, or the mean
+    over tasks."""
+    def measure(ev: Evidence) -> list[Effect]:
+        gx, gy = ev.student(x, losses[0]), ev.student(y, losses[1])
+        if not per_task:
+            a, b = ev.task_mean(gx, tasks), ev.task_mean(gy, tasks)
+            return [paired("mean over tasks", a, b) if a and b else not_run("mean over tasks", "not run")]
+        out = []
+        for task in tasks or ev.tasks:
+            a, b = ev.scores(gx, task), ev.scores(gy, task)
+            out.append(paired(task, a, b) if a and b else not_run(task, "not run at this profile"))
+        return out
+    return measure
+
+
+def student_vs_teacher(variant: str, teacher: Callable[[Evidence, str], str | None], loss: str = "mse",
+                       tasks: Sequence[str] | None = None) -> Callable[[Evidence], list[Effect]]:
+    """A student group against the one teacher run it is compared with (a fixed target), per task."""
+    def measure(ev: Evidence) -> list[Effect]:
+        out = []
+        for task in tasks or ev.tasks:
+            seeds, group = ev.scores(ev.student(variant, loss), task), teacher(ev, task)
+            run = ev.run(group, task) if group else None
+            out.append(versus_run(task, seeds, *run) if seeds and run else not_run(task, "not run at this profile"))
+        return out
+    return measure
+
+
+def teacher_vs_teacher(a: Callable[[Evidence, str], str], b: Callable[[Evidence, str], str],
+                       tasks: Sequence[str] | None = None) -> Callable[[Evidence], list[Effect]]:
+    """Two policies trained once each (per task): the difference of their eval means, no interval."""
+    def measure(ev: Evidence) -> list[Effect]:
+        out = []
+        for task in tasks or ev.tasks:
+            ea, eb = ev.entry(a(ev, task), task), ev.entry(b(ev, task), task)
+            effect = single_runs(task, ea, eb)
+            out.append(effect if effect.value is None else
+                       Effect(task, effect.value * ev.scale(task), n=effect.n, unit=effect.unit, why=effect.why))
+        return out
+    return measure
+
+
+def probe_tau_vs(x: str, y: str = "", layers: Sequence[int] | None = None, at_y: str = "final"
+                 ) -> Callable[[Evidence], list[Effect]]:
+    """Per layer: per-state tau-a on the probe states of students x - students y, paired by seed."""
+    def measure(ev: Evidence) -> list[Effect]:
+        out = []
+        for layer in layers or ev.layers() or (1, 2):
+            a, b = ev.probe_tau(x, layer), ev.probe_tau(y, layer, at_y)
+            label = f"layer {layer}"
+            out.append(paired(label, a, b) if a and b else not_run(label, "not run at this profile"))
+        return out
+    return measure
+
+
+def sc_tau_vs(x: str, y: str, measure_key: str = "average_tau_a", scope: str | None = None
+              ) -> Callable[[Evidence], list[Effect]]:
+    """Per layer: shared_computation tau of student groups x - y (structure variants), paired by seed."""
+    def measure(ev: Evidence) -> list[Effect]:
+        out = []
+        for layer in ev.layers():
+            a = ev.sc_tau(ev.structure(x, scope=scope), layer, measure_key)
+            b = ev.sc_tau(ev.structure(y, scope=scope), layer, measure_key)
+            label = f"layer {layer}"
+            out.append(paired(label, a, b) if a and b else not_run(label, "not run at this profile"))
+        return out
+    return measure
+
+
+def sc_tau_vs_thesis(variant: str, thesis: tuple[float, float]) -> Callable[[Evidence], list[Effect]]:
+    """Per layer: average tau-a of a group (Table 6.2's measure) minus the thesis's Table 6.2 value."""
+    def measure(ev: Evidence) -> list[Effect]:
+        out = []
+        for layer, value in zip(ev.layers() or (1, 2), thesis):
+            seeds = ev.sc_tau(ev.structure(variant), layer, "average_tau_a")
+            label = f"layer {layer}"
+            out.append(versus_constant(label, seeds, value) if seeds else not_run(label, "not run at this profile"))
+        return out
+    return measure
+
+
+def requires_level(level: str, measure: Callable[[Evidence], list[Effect]]) -> Callable[[Evidence], list[Effect]]:
+    """``measure`` where the run trained teachers at ``level``; else one not-run cell saying so."""
+    def wrapped(ev: Evidence) -> list[Effect]:
+        if level not in ev.results.levels:
+            return [not_run(level, f"needs {level} teachers and students (study.levels: {ev.results.levels})")]
+        return measure(ev)
+    return wrapped
+
+
+def mop_teacher(ev: Evidence, task: str) -> str:
+    return ev.teacher(task)
+
+
+def gaussian_teacher(ev: Evidence, task: str) -> str:
+    return ev.teacher(task, "gaussian")
+
+
+def ds_teacher(ev: Evidence, task: str) -> str:
+    return f"teacher_ds_{ev.level(task)}_deterministic"
+
+
+def other_task(ev: Evidence, task: str) -> str:
+    return next(t for t in ev.tasks if t != task)
+
+
+def oqs_teacher(ev: Evidence, task: str) -> str:
+    """Task ``task``'s OQS candidate trained on the other task's data relabelled (D_{j->i}, j != i)."""
+    return f"teacher_from_{other_task(ev, task)}_{ev.level(task)}_deterministic"
+
+
+def best_teacher(ev: Evidence, task: str) -> str | None:
+    """The better (by eval mean) of task's own MOP teacher and its OQS candidate on the other's data."""
+    groups = [g for g in (mop_teacher(ev, task), oqs_teacher(ev, task)) if ev.entry(g, task)]
+    return max(groups, key=lambda g: ev.entry(g, task)["mean"]) if groups else None
+
+
+def cross_task_walk_teacher(ev: Evidence) -> list[Effect]:
+    """Table 6.3: on each study task's reward, the walk teacher minus that task's own teacher (runs trained once)."""
+    cross = (ev.results.evaluation or {}).get("cross_task", {}).get(ev.level(ev.tasks[0]), {})
+    if "walk" not in cross:
+        return [not_run("walk", "no walk teacher in this study")]
+    out = []
+    for task in ev.tasks:
+        if task == "walk" or task not in cross:
+            continue
+        walk, own = cross["walk"].get(task), cross[task].get(task)
+        out.append(Effect(f"on {task}'s reward", (walk["mean"] - own["mean"]) * ev.scale(task), n=1,
+                          unit="run per side", why="1 run per side: no interval over runs"))
+    return out
+
+
+def composed_widths(ev: Evidence) -> list[int]:
+    return sorted(ev.settings.get("shift_widths", []))
+
+
+def width_composed_mean(ev: Evidence, datasets: Sequence[str], width: int) -> dict[int, float] | None:
+    """Per seed: the mean over tasks and ``datasets`` of the width-``width`` students' normalised returns."""
+    means = [ev.task_mean(ev.student(ev.composed(d, width))) for d in datasets]
+    if any(m is None for m in means):
+        return None
+    seeds = sorted(set.intersection(*(set(m) for m in means)))
+    return {s: float(np.mean([m[s] for m in means])) for s in seeds}
+
+
+def random_vs_teacher_data(ev: Evidence) -> list[Effect]:
+    widths = composed_widths(ev)
+    if not widths:
+        return [not_run("smallest width", "no composed-data students (state_shift.widths)")]
+    w = widths[0]
+    a = width_composed_mean(ev, ("random90", "random99"), w)
+    b = width_composed_mean(ev, ("online", "noise"), w)
+    return [paired(f"width {w}", a, b) if a and b else not_run(f"width {w}", "not run at this profile")]
+
+
+def noise_vs_online_small(ev: Evidence) -> list[Effect]:
+    widths = composed_widths(ev)
+    if not widths:
+        return [not_run("smallest width", "no composed-data students (state_shift.widths)")]
+    w = widths[0]
+    return student_vs_student(ev.composed("noise", w), ev.composed("online", w))(ev)
+
+
+def random90_at_512(ev: Evidence) -> list[Effect]:
+    if 512 not in composed_widths(ev):
+        return [not_run("width 512", f"needs width 512 (state_shift.widths: {composed_widths(ev)})")]
+    return student_vs_teacher(ev.composed("random90", 512), mop_teacher)(ev)
+
+
+def online_vs_offline(ev: Evidence) -> list[Effect]:
+    width = ev.settings.get("student_width")
+    if width not in composed_widths(ev):
+        return [not_run("online", "no online students at the distill width")]
+    return student_vs_student(ev.composed("online", width), "")(ev)
+
+
+def shift_rank_correlation(ev: Evidence) -> list[Effect]:
+    """Hypothesis 1 at the smallest composed width: per training seed and task, Spearman's rho between
+    the measured KL(teacher || dataset) and the student's normalised return over the datasets (the
+    offline one and each composed one); t-interval over seeds."""
+    widths, shift = composed_widths(ev), (ev.shift or {}).get("shift", {})
+    if not widths or not shift:
+        return [not_run("smallest width", "no composed-data students or no shift measure")]
+    w, out = widths[0], []
+    for task in ev.tasks:
+        kl = {name: m["kl"] for name, m in shift.get(task, {}).items() if "kl" in m}
+        groups = {d: ev.student(ev.composed(d, w)) for d in ev.settings.get("shift_datasets", []) if d in kl}
+        per_seed = {d: ev.scores(g, task) for d, g in groups.items()}
+        per_seed = {d: s for d, s in per_seed.items() if s}
+        if len(per_seed) < 3:
+            out.append(not_run(task, "fewer than 3 composed datasets with students"))
+            continue
+        seeds = sorted(set.intersection(*(set(s) for s in per_seed.values())))
+        rhos = {s: float(spearmanr([kl[d] for d in per_seed], [per_seed[d][s] for d in per_seed])[0]) for s in seeds}
+        ci = seed_interval(list(rhos.values()), TAU_BOUNDS)
+        out.append(Effect(f"{task}, width {w}", ci["mean"], ci["ci_low"], ci["ci_high"], len(seeds),
+                          f"training seeds (rho over {len(per_seed)} datasets each)",
+                          "" if ci["ci_low"] is not None else "fewer than 3 seeds"))
+    return out
+
+
+def online_within_null(ev: Evidence) -> list[Effect]:
+    """The online dataset (the teacher's own rollouts: no shift by construction) against the null of
+    the episode-split estimator: KL - the null's upper end (<= 0: within the null)."""
+    shift = (ev.shift or {}).get("shift", {})
+    out = []
+    for task in ev.tasks:
+        online, null = shift.get(task, {}).get("online"), shift.get(task, {}).get("reference")
+        if not online or not null:
+            out.append(not_run(task, "no online dataset measured"))
+            continue
+        low, high = online.get("kl_low"), online.get("kl_high")
+        out.append(Effect(task, online["kl"] - null["kl_null_high"],
+                          None if low is None else low - null["kl_null_high"],
+                          None if high is None else high - null["kl_null_high"],
+                          null.get("null_splits", 0), "episode splits (nats above the null's upper end)"))
+    return out
+
+
+def untrained_minus(ev: Evidence) -> list[Effect]:
+    """Plain MOP students: final per-state tau-a on the probe states minus the same student's at
+    initialisation, paired (each student with itself)."""
+    out = []
+    for layer in ev.layers() or (1, 2):
+        final, init = ev.probe_tau("", layer), ev.probe_tau("", layer, "at_init")
+        label = f"layer {layer}"
+        out.append(paired(label, final, init, "training seeds (each student with itself)") if final and init
+                   else not_run(label, "no probe tau"))
+    return out
+
+
+def substitute_sharing_tau(ev: Evidence) -> list[Effect]:
+    """On each substitute's task set: per-state tau-a of DS and OQS students minus MOP's, per layer."""
+    substitutes = list(dict.fromkeys(r.key["substitute"] for r in ev.results.substitutes))
+    if not substitutes:
+        return [not_run("substitute set", "no data_sharing.substitutes")]
+    out = []
+    for sub in substitutes:
+        scope = f"{sub}-{ev.pairing}"
+        for variant, name in ((ev.sharing("ds"), "DS"), (ev.sharing("oqs", "own"), "OQS")):
+            for cell in sc_tau_vs(variant, "mop", "per_state_tau_a", scope)(ev):
+                out.append(Effect(f"{name} {cell.label}", cell.value, cell.low, cell.high, cell.n, cell.unit, cell.why))
+    return out
+
+
+
+def labelled(label: str, measure: Callable[[Evidence], list[Effect]]) -> Callable[[Evidence], list[Effect]]:
+    """``measure``'s cells with ``label`` before their own (to join several measures in one finding)."""
+    def wrapped(ev: Evidence) -> list[Effect]:
+        return [Effect(f"{label}, {e.label}", e.value, e.low, e.high, e.n, e.unit, e.why) for e in measure(ev)]
+    return wrapped
+
+
+def joined(*measures: Callable[[Evidence], list[Effect]]) -> Callable[[Evidence], list[Effect]]:
+    return lambda ev: [effect for measure in measures for effect in measure(ev)]
+
+
+def smallest_width(ev: Evidence) -> int | None:
+    widths = ev.settings.get("widths") or []
+    return min(widths) if widths else None
+
+
+def width_measure(kind: str) -> Callable[[Evidence], list[Effect]]:
+    """The smallest common_structure width against the plain students: return per task, or probe tau."""
+    def measure(ev: Evidence) -> list[Effect]:
+        w = smallest_width(ev)
+        if w is None:
+            return [not_run("smallest width", "no width students (common_structure.widths)")]
+        inner = student_vs_student(ev.width(w), "") if kind == "return" else probe_tau_vs(ev.width(w))
+        return labelled(f"width {w}", inner)(ev)
+    return measure
+
+
+def ranking_measure(loss: str, kind: str, layers: Sequence[int] | None = None,
+                    per_task: bool = True) -> Callable[[Evidence], list[Effect]]:
+    def measure(ev: Evidence) -> list[Effect]:
+        if loss not in ev.settings.get("ranking_losses", []):
+            return [not_run(loss, f"needs {loss} students (common_structure.ranking_losses)")]
+        if kind == "return":
+            return student_vs_student(ev.ranking(loss), "", per_task=per_task)(ev)
+        return probe_tau_vs(ev.ranking(loss), "", layers)(ev)
+    return measure
+
+
+# ---- the thesis's findings, in its order ---------------------------------------------------------------
+BEHAVIOUR = "behaviour_medium"
+THESIS: list[Finding] = [
+    Finding("teachers_match_behaviour", "5.1.1, Figure 5.1",
+            "The resulting policies closely match or slightly exceed the performance of their corresponding "
+            "behavior policies.", 365, "teacher - behaviour policy (medium)", equal_within(RETURN_MARGIN),
+            teacher_vs_teacher(mop_teacher, lambda ev, t: BEHAVIOUR)),
+    Finding("multitask_fails", "5.1.2, Figure 5.3",
+            "We conclude that introducing a multi-task actor prevents the agent to effectively learn either task.",
+            379, "naive multi-task PBRL - single-task teacher", BELOW,
+            teacher_vs_teacher(lambda ev, t: f"multitask_{ev.level(t)}", mop_teacher)),
+    Finding("stochastic_teachers_worse", "5.1.3, Figure 5.4",
+            "The stochastic teachers perform worse than the deterministic ones.", 449,
+            "Gaussian teacher - deterministic teacher", BELOW, teacher_vs_teacher(gaussian_teacher, mop_teacher)),
+    Finding("mse_best_loss", "5.1.3, Figure 5.4",
+            "Experiments in the Walker environment indicate that, somewhat surprisingly, the MSE loss performs best.",
+            447, "MSE students - Q / KL students (mean over tasks, paired by seed)", ABOVE,
+            joined(labelled("vs Q", student_vs_student("", "", False, losses=("mse", "q"))),
+                   labelled("vs KL", student_vs_student("", "", False, losses=("mse", "kl"))))),
+    Finding("mse_matches_teacher", "5.1.3, Figure 5.4",
+            "MSE matches the teachers' performance, whereas the Q-value loss yields slightly lower values.", 451,
+            "MSE students - their teacher run", equal_within(RETURN_MARGIN),
+            student_vs_teacher("", mop_teacher)),
+    Finding("q_below_mse", "5.1.3, Figure 5.4",
+            "MSE matches the teachers' performance, whereas the Q-value loss yields slightly lower values.", 451,
+            "Q students - MSE students (paired by seed)", BELOW, student_vs_student("", "", losses=("q", "mse"))),
+    Finding("kl_fails_walk", "5.1.3, Figure 5.4",
+            "It fails to match teacher performance, particularly in the walking task.", 453,
+            "KL students - their Gaussian teacher run", BELOW, student_vs_teacher("", gaussian_teacher, "kl"),
+            every_cell=False),
+    Finding("medium_replay_walk_short", "5.2, Figure 5.5",
+            "However, the approach falls slightly short on the walking task with the medium-replay dataset", 459,
+            "MSE students - teacher run on walk (medium_replay)", BELOW,
+            requires_level("medium_replay", lambda ev: [not_run("walk", "no medium_replay pairing")]),
+            levels=("medium_replay",)),
+    Finding("online_not_better", "5.2.3, Figure 5.7",
+            "Contrary to expectations, online PD does not outperform offline PD in this setting.", 499,
+            "students on online states - on the offline dataset (distill width; thesis: medium-replay)",
+            equal_within(RETURN_MARGIN), online_vs_offline),
+    Finding("random_least_robust_small", "5.2.4, Figure 5.8",
+            "The Random90 and Random99 datasets are the least robust to smaller network sizes, which aligns with "
+            "our initial expectations.", 526,
+            "smallest width: mean of random90/random99 students - mean of online/noise students", BELOW,
+            random_vs_teacher_data),
+    Finding("noise_most_robust_small", "5.2.4, Figure 5.8",
+            "Remarkably, the Noise dataset appears to be the most robust to smaller networks.", 528,
+            "smallest width: noise students - online students", ABOVE, noise_vs_online_small),
+    Finding("random90_near_teacher_512", "5.2.4, Figure 5.8",
+            "Random90 nearly matches teacher performance for the largest network, which has 512 neurons per hidden "
+            "layer.", 530, "width 512 random90 students - their teacher run", equal_within(RETURN_MARGIN),
+            random90_at_512),
+    Finding("hypothesis_1", "5.2.4 (Hypothesis 1)",
+            "The hypothesis holds in that student performance generally declines when the network size is small "
+            "and the distribution shift is large.", 550,
+            "Spearman rho(measured KL(teacher || data), student return) over the datasets, per seed", BELOW,
+            shift_rank_correlation),
+    Finding("per_state_above_average", "6.2.3, Table 6.1",
+            "The similarity for per-state activations is significantly higher than for average activations.", 692,
+            "MOP students: per-state tau-a - average tau-a (each student with itself)", ABOVE,
+            lambda ev: [paired(f"layer {layer}", ev.sc_tau(ev.structure(), layer, "per_state_tau_a"),
+                               ev.sc_tau(ev.structure(), layer, "average_tau_a"), "training seeds (paired)")
+                        for layer in ev.layers()]),
+    Finding("layer_order_reverses", "6.2.3, Table 6.1",
+            "Furthermore, the per-state activations indicate more sharing in the first layer than in the second "
+            "layer, whereas for the average activations, this is reversed.", 692,
+            "MOP students: per-state tau layer 1 - layer 2; average tau layer 2 - layer 1", ABOVE,
+            lambda ev: [paired("per-state L1 - L2", ev.sc_tau(ev.structure(), 1, "per_state_tau_a"),
+                               ev.sc_tau(ev.structure(), 2, "per_state_tau_a"), "training seeds (paired)"),
+                        paired("average L2 - L1", ev.sc_tau(ev.structure(), 2), ev.sc_tau(ev.structure(), 1),
+                               "training seeds (paired)")]),
+    Finding("expert_shares_most", "6.2.3, Table 6.1",
+            "The results show that Expert X Expert shares the most.", 696,
+            "expert students' tau - medium students' tau", ABOVE,
+            requires_level("expert", lambda ev: [not_run("expert", "no expert pairing in this run")]),
+            levels=("expert", "medium")),
+    Finding("width_degrades_return", "6.3.1, Figure 6.4",
+            "As the network size decreases, both performance and shared computation gradually degrade.", 740,
+            "smallest-width students - plain students (normalised return, paired by seed)", BELOW,
+            width_measure("return")),
+    Finding("width_degrades_tau", "6.3.1, Figure 6.4",
+            "As the network size decreases, both performance and shared computation gradually degrade.", 740,
+            "smallest-width students - plain students (per-state tau-a on probe states)", BELOW,
+            width_measure("tau")),
+    Finding("pairwise_highest_tau", "6.3.2, Figure 6.5",
+            "The pairwise loss achieves the highest Kendall's τ , but this comes at a significant cost to "
+            "performance.", 789, "pairwise-ranking students - plain students (per-state tau-a on probe states)",
+            ABOVE, ranking_measure("pairwise", "tau")),
+    Finding("pairwise_costs_return", "6.3.2, Figure 6.5",
+            "The pairwise loss achieves the highest Kendall's τ , but this comes at a significant cost to "
+            "performance.", 789, "pairwise-ranking students - plain students (return, mean over tasks)", BELOW,
+            ranking_measure("pairwise", "return", per_task=False)),
+    Finding("ndcg_no_effect", "6.3.2, Figure 6.5",
+            "The NDCG loss shows results almost identical to those with no regularization in both episode reward "
+            "and Kendall's τ .", 791, "approx-NDCG students - plain students (return, mean over tasks)",
+            equal_within(RETURN_MARGIN), ranking_measure("approx_ndcg", "return", per_task=False)),
+    Finding("listwise_raises_layer1_tau", "6.3.2, Figure 6.5",
+            "Lastly, the listwise loss maintains the same performance while significantly improving Kendall's τ in "
+            "the first layer.", 799, "listwise students - plain students (per-state tau-a, layer 1)", ABOVE,
+            ranking_measure("listwise", "tau", (1,))),
+    Finding("listwise_keeps_return", "6.3.2, Figure 6.5",
+            "Lastly, the listwise loss maintains the same performance while significantly improving Kendall's τ in "
+            "the first layer.", 799, "listwise students - plain students (return per task)",
+            equal_within(RETURN_MARGIN), ranking_measure("listwise", "return")),
+    Finding("listwise_layer2_at_baseline", "6.3.2, Figure 6.5",
+            "However, in the second layer, the shared computation decreases, averaging out to a level similar to "
+            "that with no regularization.", 799, "listwise students - plain students (per-state tau-a, layer 2)",
+            equal_within(TAU_MARGIN), ranking_measure("listwise", "tau", (2,))),
+    Finding("ds_teacher_better_on_stand", "6.4.4, Figure 6.9a",
+            "The teacher improves upon MOP in the standing task and matches its performance in the walking task.",
+            915, "DS teacher - MOP teacher on stand", ABOVE, teacher_vs_teacher(ds_teacher, mop_teacher, ("stand",))),
+    Finding("ds_teacher_matches_on_walk", "6.4.4, Figure 6.9a",
+            "The teacher improves upon MOP in the standing task and matches its performance in the walking task.",
+            915, "DS teacher - MOP teacher on walk", equal_within(RETURN_MARGIN),
+            teacher_vs_teacher(ds_teacher, mop_teacher, ("walk",))),
+    Finding("ds_student_replicates_teacher", "6.4.4, Figure 6.9a",
+            "The student successfully replicates this behavior, achieving the best performance compared to both "
+            "MOP and OQS across both tasks.", 915, "DS students - their DS teacher run",
+            equal_within(RETURN_MARGIN), lambda ev: student_vs_teacher(ev.sharing("ds"), ds_teacher)(ev)),
+    Finding("ds_student_best", "6.4.4, Figure 6.9a",
+            "The student successfully replicates this behavior, achieving the best performance compared to both "
+            "MOP and OQS across both tasks.", 915, "DS students - MOP / OQS students (per task, paired by seed)",
+            ABOVE, lambda ev: joined(labelled("vs MOP", student_vs_student(ev.sharing("ds"), "")),
+                                     labelled("vs OQS", student_vs_student(ev.sharing("ds"),
+                                                                           ev.sharing("oqs", "own"))))(ev)),
+    Finding("ds_raises_tau", "6.4.4, Table 6.2",
+            "Additionally, shared computation improves significantly compared to MOP", 915,
+            "DS students - MOP students (average tau-a, Table 6.2's measure)", ABOVE,
+            lambda ev: sc_tau_vs(ev.sharing("ds"), "")(ev)),
+    Finding("oqs_highest_tau", "6.4.4, Table 6.2",
+            "In terms of shared computation, as shown in Table [6.2,](#page-49-1) OQS performs the best.", 945,
+            "OQS students - DS / MOP students (average tau-a)", ABOVE,
+            lambda ev: joined(labelled("vs DS", sc_tau_vs(ev.sharing("oqs", "own"), ev.sharing("ds"))),
+                              labelled("vs MOP", sc_tau_vs(ev.sharing("oqs", "own"), "")))(ev)),
+    Finding("table_6_2_mop", "Table 6.2 (Medium X Medium, MOP)", "Medium X Medium	MOP	0.067	0.15", 930,
+            "MOP students' average tau-a - the thesis's value", equal_within(TAU_MARGIN),
+            sc_tau_vs_thesis("", (0.067, 0.15))),
+    Finding("table_6_2_ds", "Table 6.2 (Medium X Medium, DS)", "	DS	0.52	0.67", 931,
+            "DS students' average tau-a - the thesis's value", equal_within(TAU_MARGIN),
+            lambda ev: sc_tau_vs_thesis(ev.sharing("ds"), (0.52, 0.67))(ev)),
+    Finding("table_6_2_oqs", "Table 6.2 (Medium X Medium, OQS)", "	OOS	0.68	0.76", 932,
+            "OQS students' average tau-a - the thesis's value", equal_within(TAU_MARGIN),
+            lambda ev: sc_tau_vs_thesis(ev.sharing("oqs", "own"), (0.68, 0.76))(ev)),
+    Finding("oqs_data_teacher_stands", "6.4.4, Figure 6.9a",
+            "In the standing task, the cross-task teachers outperform or match the original teachers", 941,
+            "stand's teacher on walk's data - stand's MOP teacher", ABOVE,
+            teacher_vs_teacher(oqs_teacher, mop_teacher, ("stand",))),
+    Finding("oqs_data_teacher_walks_poorly", "6.4.4, Figure 6.9a",
+            "However, in the walking task, the cross-task teachers perform poorly (the right bar is lower than the "
+            "left bar).", 941, "walk's teacher on stand's data - walk's MOP teacher", BELOW,
+            teacher_vs_teacher(oqs_teacher, mop_teacher, ("walk",))),
+    Finding("oqs_student_below_best_teacher", "6.4.4, Figure 6.9a",
+            "Contrary to these expectations, the OQS student always performs worse than its best teacher.", 943,
+            "OQS students - the better of the task's MOP and OQS teacher runs", BELOW,
+            lambda ev: student_vs_teacher(ev.sharing("oqs", "own"), best_teacher)(ev)),
+    Finding("oqs_student_worse", "6.5",
+            "While it showed improved shared computation, the overall student performance decreased.", 973,
+            "OQS students - MOP students (mean over tasks, paired by seed)", BELOW,
+            lambda ev: student_vs_student(ev.sharing("oqs", "own"), "", per_task=False)(ev)),
+    Finding("ds_degrades_expert", "6.4.4, Figure 6.9b",
+            "However, in the Expert X Expert setting (Figure [6.9b\\)](#page-49-0), DS significantly degrades "
+            "teacher performance compared to MOP in both tasks.", 917, "DS teacher - MOP teacher (expert)", BELOW,
+            requires_level("expert", teacher_vs_teacher(ds_teacher, mop_teacher)), levels=("expert",)),
+    Finding("walk_teacher_best_on_both", "6.4.5, Table 6.3",
+            "indicate that the walk teacher performs better in both tasks for all offline datasets.", 951,
+            "walk's teacher on each task's reward - that task's own teacher", ABOVE, cross_task_walk_teacher),
+]
+
+# ---- this run's own findings --------------------------------------------------------------------------
+OWN: list[Finding] = [
+    Finding("training_lowers_tau", "this run",
+            "Distillation lowers per-state tau: every plain MOP student ends below its own value at initialisation.",
+            None, "plain students: final - initial per-state tau-a on the probe states", BELOW, untrained_minus),
+    Finding("substitute_sharing_lowers_tau", "this run",
+            "On {stand_still, walk}, DS and OQS students share less than MOP's, not more.", None,
+            "DS / OQS students - MOP students on the substitute set (per-state tau-a)", BELOW,
+            substitute_sharing_tau),
+    Finding("single_task_beats_mop_on_stand", "this run",
+            "On stand, students distilled on stand alone beat the multi-task MOP students.", None,
+            "single-task students - MOP students on stand (paired by seed)", ABOVE,
+            lambda ev: student_vs_student(ev.single("stand"), "", tasks=("stand",))(ev)
+            if "stand" in ev.settings.get("single_task", []) else [not_run("stand", "no single-task students")]),
+    Finding("online_within_null", "this run",
+            "The online dataset (the teacher's own rollouts) shows no shift: its KL lies within the episode-split "
+            "null.", None, "online KL(teacher || data) - the null's upper end, nats", BELOW, online_within_null),
+]
+
+for _finding in THESIS + OWN:
+    register(_finding)

@@ -1,0 +1,132 @@
+"""The verdict rule (mop_core.verdicts), the findings registry (mop_core.findings) and the report's
+verdict table (mop_core.report_verdicts) on synthetic results whose answer is known."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from mop_core.evidence import Evidence
+from mop_core.findings import FINDINGS, OWN, THESIS, Finding
+from mop_core.report import StudyResults
+from mop_core.report_verdicts import decide, plain_quote, verdict_record, verdict_section
+from mop_core.statistics import confidence_interval
+from mop_core.verdicts import (
+    ABOVE,
+    BELOW,
+    CONTRADICTED,
+    INCONCLUSIVE,
+    REPRODUCED,
+    Effect,
+    cell_verdict,
+    equal_within,
+    finding_verdict,
+    paired,
+    versus_run,
+)
+
+THESIS_TEXT = Path(__file__).resolve().parents[2] / "shared" / "reference" / "mop-thesis.txt"
+TASKS = ["stand", "walk"]
+
+
+def _effect(low: float, high: float, n: int = 3) -> Effect:
+    return Effect("cell", (low + high) / 2, low, high, n, "training seeds")
+
+
+@pytest.mark.parametrize("claim", [ABOVE, BELOW])
+def test_separated_in_the_claims_direction_reproduces_and_the_opposite_contradicts(claim):
+    positive, negative, straddling = _effect(1.0, 3.0), _effect(-3.0, -1.0), _effect(-1.0, 2.0)
+    agree, disagree = (positive, negative) if claim is ABOVE else (negative, positive)
+    assert cell_verdict(agree, claim)[0] == REPRODUCED
+    assert cell_verdict(disagree, claim)[0] == CONTRADICTED
+    assert cell_verdict(straddling, claim) == (INCONCLUSIVE, "interval contains 0")
+
+
+def test_equality_claims_need_the_interval_inside_the_margin():
+    claim = equal_within(10.0)
+    assert cell_verdict(_effect(-4.0, 6.0), claim)[0] == REPRODUCED
+    assert cell_verdict(_effect(12.0, 30.0), claim)[0] == CONTRADICTED
+    assert cell_verdict(_effect(-25.0, -11.0), claim)[0] == CONTRADICTED
+    assert cell_verdict(_effect(-5.0, 15.0), claim)[0] == INCONCLUSIVE
+
+
+def test_fewer_than_three_runs_or_a_missing_run_are_inconclusive_and_say_why():
+    two = paired("stand", {0: 5.0, 1: 6.0}, {0: 1.0, 1: 2.0})
+    assert two.value == pytest.approx(4.0) and not two.decided
+    assert cell_verdict(two, ABOVE) == (INCONCLUSIVE, "2 paired seeds: fewer than 3")
+    assert cell_verdict(Effect("expert", None, why="needs expert teachers"), ABOVE) == \
+        (INCONCLUSIVE, "needs expert teachers")
+
+
+def test_a_finding_with_mixed_cells_names_them_and_one_contradicted_cell_contradicts_an_every_cell_claim():
+    cells = [Effect("stand", 2.0, 1.0, 3.0, 3, "s"), Effect("walk", 0.5, -1.0, 2.0, 3, "s")]
+    assert finding_verdict(cells, ABOVE) == (INCONCLUSIVE, "stand: reproduced; walk: inconclusive")
+    cells.append(Effect("run", -2.0, -3.0, -1.0, 3, "s"))
+    assert finding_verdict(cells, ABOVE)[0] == CONTRADICTED
+    assert finding_verdict(cells, ABOVE, every_cell=False)[0] == INCONCLUSIVE
+
+
+def test_paired_effects_are_t_intervals_over_the_seeds_differences():
+    effect = paired("stand", {0: 10.0, 1: 14.0, 2: 11.0, 3: 99.0}, {0: 8.0, 1: 9.0, 2: 10.0})
+    expected = confidence_interval([2.0, 5.0, 1.0])
+    assert effect.n == 3 and (effect.value, effect.low, effect.high) == pytest.approx(
+        (expected["mean"], expected["ci_low"], expected["ci_high"]))
+    assert effect.detectable == pytest.approx((expected["ci_high"] - expected["ci_low"]) / 2)
+
+
+def test_a_group_against_one_fixed_run_adds_the_runs_episode_noise():
+    seeds = {0: 50.0, 1: 52.0, 2: 54.0}
+    tight = versus_run("stand", seeds, 40.0, 0.0, 15)
+    noisy = versus_run("stand", seeds, 40.0, 30.0, 15)
+    assert tight.value == noisy.value == pytest.approx(12.0)
+    assert tight.low > 0 and noisy.high - noisy.low > tight.high - tight.low
+
+
+@pytest.mark.skipif(not THESIS_TEXT.is_file(), reason="shared/reference/mop-thesis.txt is beside the clone in CI")
+def test_every_thesis_claim_is_quoted_verbatim_from_its_line():
+    lines = THESIS_TEXT.read_text().splitlines()
+    for finding in THESIS:
+        assert finding.claim in lines[finding.line - 1], finding.key
+        assert plain_quote(finding.claim) and "](#page" not in plain_quote(finding.claim)
+
+
+def test_the_registry_holds_every_finding_once():
+    assert list(FINDINGS) == [f.key for f in THESIS + OWN]
+    assert all(isinstance(f, Finding) for f in FINDINGS.values()) and all(f.own for f in OWN)
+    assert not any(f.own for f in THESIS)
+
+
+def _entry(seed_means: dict[int, float]) -> dict:
+    mean = sum(seed_means.values()) / len(seed_means)
+    return {"mean": mean, "seed_means": {str(s): v for s, v in seed_means.items()}, "n": len(seed_means),
+            "std": 10.0}
+
+
+def _results(mse: dict[int, float], q: dict[int, float]) -> StudyResults:
+    evaluation = {task: {"student_mse_medium": _entry(mse), "student_q_medium": _entry(q),
+                         "student_kl_medium": _entry(q)} for task in TASKS}
+    evaluation["normalisation"] = {t: {"random_return": 0.0, "expert_return": 1000.0} for t in TASKS}
+    return StudyResults(tasks=TASKS, levels=["medium"], settings={"structure_pairing": "medium", "teacher_seed": 0},
+                        pairing_levels={"medium": ["medium", "medium"]}, evaluation=evaluation)
+
+
+def test_a_finding_is_decided_from_the_runs_results():
+    """'MSE performs best': MSE students clearly above Q/KL reproduce it, clearly below contradict it,
+    and students within noise of each other leave it inconclusive."""
+    finding = [FINDINGS["mse_best_loss"]]
+    above = decide(Evidence(_results({0: 600, 1: 610, 2: 620}, {0: 300, 1: 320, 2: 310})), finding)[0]
+    below = decide(Evidence(_results({0: 300, 1: 320, 2: 310}, {0: 600, 1: 610, 2: 620})), finding)[0]
+    noise = decide(Evidence(_results({0: 300, 1: 600, 2: 450}, {0: 610, 1: 290, 2: 460})), finding)[0]
+    assert (above.verdict, below.verdict, noise.verdict) == (REPRODUCED, CONTRADICTED, INCONCLUSIVE)
+    assert above.effects[0].value == pytest.approx(30.0)  # normalised points: 100 * 300 / 1000
+    assert above.effects[0].unit == "paired training seeds" and above.effects[0].n == 3
+
+
+def test_every_finding_runs_on_an_empty_run_and_the_table_says_why_nothing_is_decided():
+    decisions = decide(Evidence(StudyResults(tasks=TASKS, levels=["medium"], settings={})))
+    assert len(decisions) == len(FINDINGS) and {d.verdict for d in decisions} == {INCONCLUSIVE}
+    section = verdict_section(decisions)
+    assert section.startswith("## Verdicts") and "this run reproduces 0" in section
+    record = verdict_record(decisions)
+    assert record["thesis_findings"] == {REPRODUCED: 0, CONTRADICTED: 0, INCONCLUSIVE: len(THESIS)}
