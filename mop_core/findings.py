@@ -76,11 +76,10 @@ def student_vs_student(x: str, y: str, per_task: bool = True, tasks: Sequence[st
         gx, gy = ev.student(x, losses[0]), ev.student(y, losses[1])
         if not per_task:
             a, b = ev.task_mean(gx, tasks), ev.task_mean(gy, tasks)
-            return [paired("mean over tasks", a, b) if a and b else not_run("mean over tasks", "not run")]
+            return [paired("mean over tasks", a, b)]
         out = []
         for task in tasks or ev.tasks:
-            a, b = ev.scores(gx, task), ev.scores(gy, task)
-            out.append(paired(task, a, b) if a and b else not_run(task, "not run at this profile"))
+            out.append(paired(task, ev.scores(gx, task), ev.scores(gy, task)))
         return out
     return measure
 
@@ -118,9 +117,7 @@ def probe_tau_vs(x: str, y: str = "", layers: Sequence[int] | None = None, at_y:
     def measure(ev: Evidence) -> list[Effect]:
         out = []
         for layer in layers or ev.layers() or (1, 2):
-            a, b = ev.probe_tau(x, layer), ev.probe_tau(y, layer, at_y)
-            label = f"layer {layer}"
-            out.append(paired(label, a, b) if a and b else not_run(label, "not run at this profile"))
+            out.append(paired(f"layer {layer}", ev.probe_tau(x, layer), ev.probe_tau(y, layer, at_y)))
         return out
     return measure
 
@@ -131,10 +128,8 @@ def sc_tau_vs(x: str, y: str, measure_key: str = "average_tau_a", scope: str | N
     def measure(ev: Evidence) -> list[Effect]:
         out = []
         for layer in ev.layers():
-            a = ev.sc_tau(ev.structure(x, scope=scope), layer, measure_key)
-            b = ev.sc_tau(ev.structure(y, scope=scope), layer, measure_key)
-            label = f"layer {layer}"
-            out.append(paired(label, a, b) if a and b else not_run(label, "not run at this profile"))
+            out.append(paired(f"layer {layer}", ev.sc_tau(ev.structure(x, scope=scope), layer, measure_key),
+                              ev.sc_tau(ev.structure(y, scope=scope), layer, measure_key)))
         return out
     return measure
 
@@ -144,9 +139,7 @@ def sc_tau_vs_thesis(variant: str, thesis: tuple[float, float]) -> Callable[[Evi
     def measure(ev: Evidence) -> list[Effect]:
         out = []
         for layer, value in zip(ev.layers() or (1, 2), thesis):
-            seeds = ev.sc_tau(ev.structure(variant), layer, "average_tau_a")
-            label = f"layer {layer}"
-            out.append(versus_constant(label, seeds, value) if seeds else not_run(label, "not run at this profile"))
+            out.append(versus_constant(f"layer {layer}", ev.sc_tau(ev.structure(variant), layer), value))
         return out
     return measure
 
@@ -222,7 +215,7 @@ def random_vs_teacher_data(ev: Evidence) -> list[Effect]:
     w = widths[0]
     a = width_composed_mean(ev, ("random90", "random99"), w)
     b = width_composed_mean(ev, ("online", "noise"), w)
-    return [paired(f"width {w}", a, b) if a and b else not_run(f"width {w}", "not run at this profile")]
+    return [paired(f"width {w}", a, b)]
 
 
 def noise_vs_online_small(ev: Evidence) -> list[Effect]:
@@ -294,10 +287,8 @@ def untrained_minus(ev: Evidence) -> list[Effect]:
     initialisation, paired (each student with itself)."""
     out = []
     for layer in ev.layers() or (1, 2):
-        final, init = ev.probe_tau("", layer), ev.probe_tau("", layer, "at_init")
-        label = f"layer {layer}"
-        out.append(paired(label, final, init, "training seeds (each student with itself)") if final and init
-                   else not_run(label, "no probe tau"))
+        out.append(paired(f"layer {layer}", ev.probe_tau("", layer), ev.probe_tau("", layer, "at_init"),
+                          "training seeds (each student with itself)"))
     return out
 
 

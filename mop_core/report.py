@@ -73,10 +73,11 @@ def fmt(value: float | None, digits: int = 1) -> str:
 
 def unit_text(entry: Mapping) -> str:
     """How many units an interval is over, e.g. 'n=30 episodes', 'n=60 episodes of 2 seeds', 'n=3 seeds'."""
+    cut = "; cut at 0: too few runs for a t-interval" if entry.get("cut_at_bound") else ""
     if entry.get("ci_unit") == "training_seed":
-        return f"n={entry['n']} seeds"
+        return f"n={entry['n']} seeds{cut}"
     seeds = len(entry.get("seed_means", {}))
-    return f"n={entry['n']} episodes" + (f" of {seeds} seeds" if seeds > 1 else "")
+    return f"n={entry['n']} episodes" + (f" of {seeds} seeds" if seeds > 1 else "") + cut
 
 
 def fmt_ci(entry: Mapping | None) -> str:
@@ -333,7 +334,7 @@ def conflict_lines(results: StudyResults, figure_dir: Path, link_prefix: str) ->
             panels[pair][f"{label} ({seeds_text(len(runs))})"] = band
             drawn.append(runs)
             finals = [float(r.curve[-1][f"grad_cosine_{pair}"]) for r in runs]
-            ci = confidence_interval(finals) if len(finals) >= MIN_SEEDS_FOR_SEED_CI else None
+            ci = confidence_interval(finals, bounds=(-1.0, 1.0)) if len(finals) >= MIN_SEEDS_FOR_SEED_CI else None
             final = (f"{fmt(ci['mean'], 3)} [{fmt(ci['ci_low'], 3)}, {fmt(ci['ci_high'], 3)}] (n={len(finals)} seeds)"
                      if ci else f"{fmt(sum(finals) / len(finals), 3)} ({seeds_text(len(finals))})")
             rows.append([label, pair, fmt(min(band["mean"]), 3), final])

@@ -137,9 +137,11 @@ def capacity_lines(metrics: Mapping, tasks: Sequence[str], link_prefix: str) -> 
            "MSE students with every hidden layer that wide, on each dataset. " + _seed_caption(students, labels)
            + " The offline rows at widths other than the distill student's are the common_structure width "
            "students (section 7a). Hypothesis 1 predicts the small students to lose most on the datasets with "
-           "the largest shift. The thesis found noise data the most robust for small students: DART's effect "
-           "(Laskey et al. 2017, noise injected into the supervisor's demonstrations covers the states a "
-           "perturbed learner reaches, reducing covariate shift).", "",
+           "the largest shift. What the thesis claims of these rows (5.2.4) and this run's verdicts: the verdict "
+           "table (random_least_robust_small, noise_most_robust_small, random90_near_teacher_512, hypothesis_1). "
+           "DART (Laskey et al. 2017: noise injected into the supervisor's demonstrations covers the states a "
+           "perturbed learner reaches) is one possible mechanism for noise data helping small students; this "
+           "study does not test it.", "",
            f"![capacity]({link_prefix}capacity.png)", ""]
     corr = metrics.get("hypothesis") or {}
     if corr:
@@ -188,7 +190,7 @@ def error_lines(metrics: Mapping, tasks: Sequence[str]) -> list[str]:
             errors = students[label][task].get("action_mse", {})
             rows.append([_label(groups[label], metrics.get("pairing_levels", {})), task]
                         + [_interval(errors.get(kind), 3) for kind in ("train", "heldout", "visited")])
-    return ["### Where the students go wrong (issue 18 part 5)", "",
+    return ["### Where the students go wrong", "",
             table(["students", "task", "on training states", "on held-out episodes", "on states it visits"], rows),
             "", "Action error ||pi_T(s) - pi_S(s, i)||^2 (summed over the 6 action dimensions), mean over each "
             "student's states; mean over the training seeds with a Student-t 95% interval over them. Training "
@@ -210,7 +212,7 @@ def correction_lines(metrics: Mapping, tasks: Sequence[str]) -> list[str]:
         for row_label in (c["plain"], label):
             rows.append([_label(groups[row_label], levels)] + [_cell(students[row_label], t) for t in tasks]
                         + ([_interval(c[t]["gain"]) for t in tasks] if row_label == label else ["" for _ in tasks]))
-    return ["### Correcting the shift: reweighting and DAgger (thesis 5.3; issue 18 part 6)", "",
+    return ["### Correcting the shift: reweighting and DAgger (thesis 5.3)", "",
             table(["students"] + [f"{t}: return [95% CI] (student/teacher)" for t in tasks]
                   + [f"{t}: gain over plain [95% CI]" for t in tasks], rows), "",
             "Each correcting group under the plain students of the same data and width. reweight: states drawn "
@@ -218,7 +220,8 @@ def correction_lines(metrics: Mapping, tasks: Sequence[str]) -> list[str]:
             "states against the dataset's (the thesis's proposal, 5.3; mop_core/distill/corrections.py); dagger: "
             "the student-sampled reference (the students act online between phases of training, the teacher "
             "labels what they visit, the states join their data; same gradient steps, plus online episodes offline "
-            "distillation does not have: an upper bound for what correcting the shift can give). Gain: the return "
+            "distillation does not have: a reference with online access, not an upper bound; a correction of the "
+            "offline states can gain more, as the gains below show where it does). Gain: the return "
             "difference paired by training seed, mean and Student-t 95% interval over the seeds. "
             + _seed_caption(students, [label for label in corrections])] + _weights_caption(corrections, tasks) + [""]
 

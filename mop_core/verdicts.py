@@ -127,7 +127,7 @@ def versus_run(label: str, x: Mapping[int, float], run_mean: float, run_sd: floa
 
 def versus_constant(label: str, x: Mapping[int, float], constant: float) -> Effect:
     """Training seeds x against a published number: mean(x) - constant, t-interval over the seeds."""
-    return paired(label, x, {s: constant for s in x}, "training seeds")
+    return paired(label, x, {s: constant for s in x or {}}, "training seeds")
 
 
 def single_runs(label: str, a: Mapping | None, b: Mapping | None) -> Effect:
