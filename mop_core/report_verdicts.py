@@ -57,7 +57,7 @@ def detectable_text(effects: Sequence[Effect], digits: int = 3) -> str:
 
 
 def digits_of(finding: Finding) -> int:
-    return 3 if "tau" in finding.statistic or "rho" in finding.statistic or "nats" in finding.statistic else 1
+    return 3 if any(word in finding.statistic for word in ("tau", "rho", "nats", "share")) else 1
 
 
 def rows(decisions: Sequence[Decision]) -> list[list[str]]:

@@ -2,6 +2,12 @@
 part 4): a nearest-neighbour KL estimator with its split-half null and a bootstrap interval, and a
 classifier two-sample test with the density ratio it implies.
 
+Every split is by whole episodes (issue 34). The states of one episode are near-duplicates of each
+other, so two halves that share episodes look alike whatever the process (a row-split null near 0
+that no other set reaches; a classifier that scores rows of the episodes it trained on). Each
+function takes the episode id of every row (:func:`episode_ids`: from the datasets' ``timeouts``,
+an episode's last row); without them each row is its own episode, right for independent rows only.
+
 - :func:`knn_kl`: Wang, Kulkarni and Verdu (2009), for ``x ~ p`` (n states) and ``y ~ q`` (m states)
   in d dimensions::
 
@@ -10,14 +16,18 @@ classifier two-sample test with the density ratio it implies.
   with ``rho_k(i)`` the distance from x_i to its k-th nearest neighbour among the other x and
   ``nu_k(i)`` to its k-th nearest neighbour among y. Consistent, but biased at finite n in many
   dimensions (low here: tests/test_shift.py measures it against Gaussians of known KL), so a value
-  is read against :func:`split_half_null`, the estimate between two halves of the same set, which
-  is what "no shift" gives at that sample size.
-- :func:`bootstrap_interval`: a percentile interval of any two-sample statistic over resampled rows.
-- :func:`classifier_test`: a small MLP separating x (label 1) from y (label 0), trained on part of
-  each and scored on the rest: held-out ROC AUC (0.5: indistinguishable) and, per state s, the
-  density ratio ``p(s) / q(s) = c(s) / (1 - c(s))`` its probability ``c(s)`` implies (Sugiyama et
-  al. 2012; the two classes carry equal total weight in the loss, so no n/m prior correction): the
-  weight that turns an expectation under q into one under p.
+  is read against :func:`split_half_null`, the estimate between two halves of the same set's
+  episodes, which is what "no shift" gives at that sample size.
+- :func:`bootstrap_interval`: a percentile interval of any two-sample statistic over resampled
+  whole episodes.
+- :func:`classifier_test`: a small MLP separating x (label 1) from y (label 0), trained on some
+  episodes of each and scored on the others: held-out ROC AUC (0.5: indistinguishable) and, per
+  state s, the density ratio ``p(s) / q(s) = c(s) / (1 - c(s))`` its probability ``c(s)`` implies
+  (Sugiyama et al. 2012; the two classes carry equal total weight in the loss, so no n/m prior
+  correction): the weight that turns an expectation under q into one under p.
+  :func:`crossfit_test`: the same over episode folds, each fold scored by the classifier trained on
+  the others: an AUC from every episode and the ratio at every y state from a classifier that never
+  saw its episode.
 
 Distances and the classifier run in float32 torch on the given device, chunked so 20k x 20k states
 need O(chunk x m) memory.
@@ -74,11 +84,52 @@ def knn_kl(x: np.ndarray | torch.Tensor, y: np.ndarray | torch.Tensor, k: int = 
     return float(d * torch.log(nu / rho).mean() + np.log(m / (n - 1)))
 
 
-def draw(states: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
-    """``count`` rows drawn without replacement (all of them when there are fewer)."""
-    if len(states) <= count:
-        return np.asarray(states, dtype=np.float32)
-    return np.asarray(states[np.sort(rng.choice(len(states), size=count, replace=False))], dtype=np.float32)
+def draw_rows(rows: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
+    """``count`` of ``rows`` drawn without replacement, in order (all of them when there are fewer)."""
+    rows = np.asarray(rows)
+    if len(rows) <= count:
+        return rows
+    return np.sort(rng.choice(rows, size=count, replace=False))
+
+
+def episode_ids(ends: np.ndarray) -> np.ndarray:
+    """The episode of every row, numbered from 0 in order, from ``ends`` (a D4RL-style dataset's
+    ``timeouts``, or ``timeouts | terminals``: True at an episode's last row)."""
+    ends = np.asarray(ends, dtype=bool)
+    ids = np.zeros(len(ends), dtype=np.int64)
+    ids[1:] = np.cumsum(ends[:-1])
+    return ids
+
+
+def row_episodes(episodes: np.ndarray | None, rows: int) -> np.ndarray:
+    """``episodes`` checked against the ``rows`` states they label; None: each row its own episode."""
+    if episodes is None:
+        return np.arange(rows)
+    ids = np.asarray(episodes)
+    if ids.shape != (rows,):
+        raise ValueError(f"episodes: expected one episode id per state ({rows}), got shape {ids.shape}")
+    return ids
+
+
+def episode_folds(episodes: np.ndarray, folds: int, rng: np.random.Generator) -> np.ndarray:
+    """The fold (0 .. folds - 1) of every row: whole episodes dealt at random to the folds, whose
+    episode counts differ by at most one."""
+    unique, inverse = np.unique(episodes, return_inverse=True)
+    if len(unique) < folds:
+        raise ValueError(f"episodes: expected at least {folds} episodes to split by whole episodes, got {len(unique)}")
+    fold_of = np.empty(len(unique), dtype=np.int64)
+    fold_of[rng.permutation(len(unique))] = np.arange(len(unique)) % folds
+    return fold_of[inverse.reshape(-1)]
+
+
+def episode_sample(episodes: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
+    """The rows of ``count`` whole episodes drawn without replacement (all when there are fewer), in order."""
+    unique, inverse = np.unique(episodes, return_inverse=True)
+    if count >= len(unique):
+        return np.arange(len(episodes))
+    chosen = np.zeros(len(unique), dtype=bool)
+    chosen[rng.choice(len(unique), size=count, replace=False)] = True
+    return np.flatnonzero(chosen[inverse.reshape(-1)])
 
 
 def effective_share(weights: np.ndarray) -> float:
@@ -87,25 +138,38 @@ def effective_share(weights: np.ndarray) -> float:
     return float(w.sum() ** 2 / (len(w) * (w ** 2).sum()))
 
 
-def split_half_null(x: np.ndarray, statistic: Statistic, seed: int = 0) -> float:
-    """The statistic between two random halves of the same states: its value under no shift at half
-    the sample size (the reference a measured shift is read against)."""
-    order = np.random.default_rng(seed).permutation(len(x))
-    half = len(x) // 2
-    return statistic(np.asarray(x)[order[:half]], np.asarray(x)[order[half:2 * half]])
+def split_half_null(x: np.ndarray, statistic: Statistic, seed: int = 0, episodes: np.ndarray | None = None) -> float:
+    """The statistic between two disjoint random halves of the same states' whole ``episodes`` (the
+    same number of rows each): its value under no shift at half the sample size (the reference a
+    measured shift is read against)."""
+    x = np.asarray(x)
+    rng = np.random.default_rng(seed)
+    half = episode_folds(row_episodes(episodes, len(x)), 2, rng)
+    first, second = np.flatnonzero(half == 0), np.flatnonzero(half == 1)
+    size = min(len(first), len(second))
+    return statistic(x[draw_rows(first, size, rng)], x[draw_rows(second, size, rng)])
+
+
+def _resample_episodes(episodes: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Rows of as many whole episodes as there are, drawn with replacement (a cluster bootstrap)."""
+    unique, inverse = np.unique(episodes, return_inverse=True)
+    order = np.argsort(inverse.reshape(-1), kind="stable")
+    rows = np.split(order, np.cumsum(np.bincount(inverse.reshape(-1)))[:-1])
+    return np.concatenate([rows[e] for e in rng.integers(len(unique), size=len(unique))])
 
 
 def bootstrap_interval(x: np.ndarray, y: np.ndarray, statistic: Statistic, reps: int = 20, seed: int = 0,
-                       confidence: float = 0.95) -> tuple[float, float]:
-    """Percentile interval of ``statistic(x*, y*)`` over ``reps`` bootstrap resamples of the rows of each
-    set (the kNN estimator counts a repeated state once, so its resamples are ~63% subsamples). Read
-    it as the estimator's spread, next to its split-half null."""
+                       confidence: float = 0.95, x_episodes: np.ndarray | None = None,
+                       y_episodes: np.ndarray | None = None) -> tuple[float, float]:
+    """Percentile interval of ``statistic(x*, y*)`` over ``reps`` bootstrap resamples of the whole
+    episodes of each set (the kNN estimator counts a repeated state once, so its resamples are ~63%
+    subsamples). Read it as the estimator's spread, next to its split-half null."""
     if reps < 2:
         raise ValueError(f"reps: expected at least 2 bootstrap resamples, got {reps}")
     rng = np.random.default_rng(seed)
     x, y = np.asarray(x), np.asarray(y)
-    values = [statistic(x[rng.integers(len(x), size=len(x))], y[rng.integers(len(y), size=len(y))])
-              for _ in range(reps)]
+    x_ids, y_ids = row_episodes(x_episodes, len(x)), row_episodes(y_episodes, len(y))
+    values = [statistic(x[_resample_episodes(x_ids, rng)], y[_resample_episodes(y_ids, rng)]) for _ in range(reps)]
     tail = 100 * (1 - confidence) / 2
     low, high = np.percentile(values, [tail, 100 - tail])
     return float(low), float(high)
@@ -128,20 +192,20 @@ def roc_auc(scores_positive: torch.Tensor, scores_negative: torch.Tensor) -> flo
 @dataclass(frozen=True)
 class ClassifierConfig:
     """The two-sample classifier: an MLP on standardised states, trained with Adam on a class-balanced
-    cross-entropy, scored on a held-out share of each set."""
+    cross-entropy, scored on a held-out share of each set's whole episodes."""
 
     hidden: int = 64
     epochs: int = 20
     batch_size: int = 512
     learning_rate: float = 1e-3
-    held_out: float = 0.3
+    held_out: float = 0.3  # share of each set's episodes held out (classifier_test; crossfit_test: its folds)
     seed: int = 0
 
 
 @dataclass(frozen=True)
 class ClassifierResult:
     auc: float  # held-out ROC AUC: 0.5 = the sets cannot be told apart
-    held_out: tuple[int, int]  # held-out states of x and of y
+    held_out: tuple[int, int]  # held-out states of x and of y (whole episodes)
     model: torch.nn.Module  # logit of "drawn from x", on standardised states
     mean: torch.Tensor
     std: torch.Tensor
@@ -154,28 +218,34 @@ class ClassifierResult:
         return torch.exp(self.model(z).squeeze(-1).double()).cpu().numpy()
 
 
-def classifier_test(x: np.ndarray, y: np.ndarray, config: ClassifierConfig = ClassifierConfig(),
-                    device: torch.device | str = "cpu") -> ClassifierResult:
-    """Train a classifier to tell ``x`` (label 1) from ``y`` (label 0) on ``1 - held_out`` of each and
-    return its held-out AUC and the density ratio p/q it implies (module docstring)."""
-    if not 0 < config.held_out < 1:
-        raise ValueError(f"held_out: expected a share in (0, 1), got {config.held_out}")
-    generator = torch.Generator().manual_seed(config.seed)
-    xs, ys = _as_tensor(x, device), _as_tensor(y, device)
-    split = []
-    for states in (xs, ys):
-        order = torch.randperm(len(states), generator=generator).to(device)
-        cut = int(round(len(states) * (1 - config.held_out)))
-        if cut < 1 or cut >= len(states):
-            raise ValueError(f"x, y: too few states ({len(states)}) for a held-out share of {config.held_out}")
-        split.append((states[order[:cut]], states[order[cut:]]))
-    (x_train, x_test), (y_train, y_test) = split
+@dataclass(frozen=True)
+class CrossFitResult:
+    auc: float  # mean over the folds of each fold's held-out ROC AUC
+    fold_aucs: tuple[float, ...]
+    ratio: np.ndarray  # p/q at every row of y, from the classifier that did not train on its episode
+
+
+def held_out_episodes(episodes: np.ndarray, share: float, rng: np.random.Generator) -> np.ndarray:
+    """Rows of ``round(share * episodes)`` random whole episodes (at least one, all but one at most)."""
+    unique, inverse = np.unique(episodes, return_inverse=True)
+    if len(unique) < 2:
+        raise ValueError(f"x, y: too few episodes ({len(unique)}) to hold out whole episodes; expected at least 2")
+    count = min(len(unique) - 1, max(1, int(round(share * len(unique)))))
+    chosen = np.zeros(len(unique), dtype=bool)
+    chosen[rng.choice(len(unique), size=count, replace=False)] = True
+    return chosen[inverse.reshape(-1)]
+
+
+def _fit(x_train: torch.Tensor, y_train: torch.Tensor, config: ClassifierConfig, generator: torch.Generator,
+         seed: int) -> tuple[torch.nn.Module, torch.Tensor, torch.Tensor]:
+    """The classifier trained to tell x_train (1) from y_train (0), and its standardisation."""
+    device = x_train.device
     train = torch.cat([x_train, y_train])
     mean, std = train.mean(0), train.std(0).clamp_min(1e-6)
     labels = torch.cat([torch.ones(len(x_train)), torch.zeros(len(y_train))]).to(device)
     weights = torch.where(labels > 0, len(train) / (2.0 * len(x_train)), len(train) / (2.0 * len(y_train)))
-    torch.manual_seed(config.seed)
-    dim = xs.shape[1]
+    torch.manual_seed(seed)
+    dim = train.shape[1]
     model = torch.nn.Sequential(torch.nn.Linear(dim, config.hidden), torch.nn.ReLU(),
                                 torch.nn.Linear(config.hidden, config.hidden), torch.nn.ReLU(),
                                 torch.nn.Linear(config.hidden, 1)).to(device)
@@ -190,7 +260,60 @@ def classifier_test(x: np.ndarray, y: np.ndarray, config: ClassifierConfig = Cla
             optimiser.zero_grad(set_to_none=True)
             loss.backward()
             optimiser.step()
-    model.eval().requires_grad_(False)
-    with torch.no_grad():
-        auc = roc_auc(model((x_test - mean) / std).squeeze(-1), model((y_test - mean) / std).squeeze(-1))
-    return ClassifierResult(auc, (len(x_test), len(y_test)), model, mean, std)
+    return model.eval().requires_grad_(False), mean, std
+
+
+@torch.no_grad()
+def _logits(model: torch.nn.Module, mean: torch.Tensor, std: torch.Tensor, states: torch.Tensor) -> torch.Tensor:
+    return model((states - mean) / std).squeeze(-1)
+
+
+def _mask(rows: np.ndarray, device: torch.device | str) -> torch.Tensor:
+    return torch.as_tensor(rows, device=device)
+
+
+def classifier_test(x: np.ndarray, y: np.ndarray, config: ClassifierConfig = ClassifierConfig(),
+                    device: torch.device | str = "cpu", x_episodes: np.ndarray | None = None,
+                    y_episodes: np.ndarray | None = None) -> ClassifierResult:
+    """Train a classifier to tell ``x`` (label 1) from ``y`` (label 0) on ``1 - held_out`` of the whole
+    episodes of each (``x_episodes``, ``y_episodes``: every row's episode; None: independent rows)
+    and return its AUC on the other episodes and the density ratio p/q it implies (module docstring)."""
+    if not 0 < config.held_out < 1:
+        raise ValueError(f"held_out: expected a share in (0, 1), got {config.held_out}")
+    rng = np.random.default_rng(config.seed)
+    generator = torch.Generator().manual_seed(config.seed)
+    xs, ys = _as_tensor(x, device), _as_tensor(y, device)
+    x_test = _mask(held_out_episodes(row_episodes(x_episodes, len(xs)), config.held_out, rng), device)
+    y_test = _mask(held_out_episodes(row_episodes(y_episodes, len(ys)), config.held_out, rng), device)
+    model, mean, std = _fit(xs[~x_test], ys[~y_test], config, generator, config.seed)
+    auc = roc_auc(_logits(model, mean, std, xs[x_test]), _logits(model, mean, std, ys[y_test]))
+    return ClassifierResult(auc, (int(x_test.sum()), int(y_test.sum())), model, mean, std)
+
+
+def crossfit_test(x: np.ndarray, y: np.ndarray, config: ClassifierConfig = ClassifierConfig(),
+                  device: torch.device | str = "cpu", x_episodes: np.ndarray | None = None,
+                  y_episodes: np.ndarray | None = None, folds: int = 2, train_states: int | None = None
+                  ) -> CrossFitResult:
+    """:func:`classifier_test` over ``folds`` folds of whole episodes of each set (``held_out`` unused):
+    fold j is scored by a classifier trained on the other folds (at most ``train_states`` rows of
+    each set, drawn from them); the AUC is the folds' mean and the density ratio at every y row comes
+    from the classifier that never saw its episode (cross-fitting)."""
+    if folds < 2:
+        raise ValueError(f"folds: expected at least 2, got {folds}")
+    rng = np.random.default_rng(config.seed)
+    generator = torch.Generator().manual_seed(config.seed)
+    xs, ys = _as_tensor(x, device), _as_tensor(y, device)
+    x_fold = episode_folds(row_episodes(x_episodes, len(xs)), folds, rng)
+    y_fold = episode_folds(row_episodes(y_episodes, len(ys)), folds, rng)
+    cap = train_states or max(len(xs), len(ys))
+    ratio = np.empty(len(ys), dtype=np.float64)
+    aucs = []
+    for fold in range(folds):
+        x_train = _mask(draw_rows(np.flatnonzero(x_fold != fold), cap, rng), device)
+        y_train = _mask(draw_rows(np.flatnonzero(y_fold != fold), cap, rng), device)
+        model, mean, std = _fit(xs[x_train], ys[y_train], config, generator, config.seed + fold)
+        y_rows = np.flatnonzero(y_fold == fold)
+        y_logits = _logits(model, mean, std, ys[_mask(y_rows, device)])
+        aucs.append(roc_auc(_logits(model, mean, std, xs[_mask(np.flatnonzero(x_fold == fold), device)]), y_logits))
+        ratio[y_rows] = torch.exp(y_logits.double()).cpu().numpy()
+    return CrossFitResult(float(np.mean(aucs)), tuple(aucs), ratio)

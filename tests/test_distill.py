@@ -588,7 +588,8 @@ def test_density_weights_favour_the_teachers_states_and_respect_the_clip():
     rng = np.random.default_rng(0)
     teacher = rng.normal(0.0, 1.0, (3000, 4)).astype(np.float32)
     data = np.concatenate([rng.normal(0.0, 1.0, (300, 4)), rng.normal(4.0, 1.0, (2700, 4))]).astype(np.float32)
-    weights, info = density_weights(data, teacher, ReweightConfig(clip=5.0, states=3000, epochs=10), seed=1)
+    weights, info = density_weights(data, teacher, ReweightConfig(clip=5.0, states=3000, epochs=10), seed=1,
+                                    episode_rows=1)  # independent rows: each its own episode
     assert weights.shape == (3000,) and weights.max() <= 5.0 and (weights >= 0).all()
     assert weights[:300].mean() > 20 * weights[300:].mean()  # the teacher-like 10% carry the weight
     assert info["reweight_auc"] > 0.9 and 0 < info["reweight_clipped_share"] < 1

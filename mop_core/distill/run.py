@@ -160,7 +160,8 @@ def build_states(sources: StudentSources, teachers: Sequence[Teacher], config: D
         weights = None
         if config.correction == "reweight":
             reference = offline_states(sources.references[i], 0, np.random.default_rng(0))
-            weights, info = density_weights(states, reference, config.reweight, task_seeds["reweight"])
+            weights, info = density_weights(states, reference, config.reweight, task_seeds["reweight"],
+                                            episode_rows=episode_length)  # whole episodes, in dataset order
             source |= {"reference": str(sources.references[i])} | info
         if sources.heldout:
             heldout = offline_states(sources.heldout[i], 0, np.random.default_rng(0))
