@@ -1,8 +1,8 @@
-"""State distribution shift between two sets of states (thesis 5.2.2 could not measure it; issue 18
-part 4): a nearest-neighbour KL estimator with its split-half null and a bootstrap interval, and a
+"""State distribution shift between two sets of states (thesis 5.2.2 could not measure it): a
+nearest-neighbour KL estimator with its split-half null and a bootstrap interval, and a
 classifier two-sample test with the density ratio it implies.
 
-Every split is by whole episodes (issue 34). The states of one episode are near-duplicates of each
+Every split is by whole episodes. The states of one episode are near-duplicates of each
 other, so two halves that share episodes look alike whatever the process (a row-split null near 0
 that no other set reaches; a classifier that scores rows of the episodes it trained on). Each
 function takes the episode id of every row (:func:`episode_ids`: from the datasets' ``timeouts``,
