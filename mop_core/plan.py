@@ -182,7 +182,8 @@ def stage_hours(params: Mapping[str, Any], rates: Rates) -> dict[str, tuple[int,
                 + shared_teachers
                 + len(tasks) * len(levels) * len(teachers["actors"]) * len(teachers["seeds"])
                 + len(levels) * len(tasks) * (len(tasks) - 1)  # cross-task teachers
-                + count * len(tasks) + students * len(tasks) + singles * seeds)
+                + count * len(tasks) + students * len(tasks) + singles * seeds
+                + len(tasks) * sum(out[s][0] for s in ("distill_composed", "distill_size", "distill_corrected")))
     out["eval"] = (policies, policies * params["eval"]["episodes"] * length / rates.rollout / 3600)
     shared = params["shared_computation"]
     out["shared_computation"] = (students + singles * seeds, (students * len(tasks) + singles * seeds)
