@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 from scipy import stats
+from trajectories import ar1_episodes
 
 from mop_core.shift import (
     ClassifierConfig,
@@ -103,21 +104,6 @@ def test_the_classifier_tells_a_shift_from_none_and_its_ratio_follows_the_true_o
     assert abs(same.auc - 0.5) < 0.05
 
 
-def _trajectories(episodes: int, seed: int, shift: float = 0.0, length: int = 50, d: int = 24
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Episodes of a trajectory-correlated process (like a policy's rollouts): per episode a centre
-    ~ N(0, 0.25 I) plus an AR(1) walk with autocorrelation 0.98, every state moved by ``shift`` on each
-    axis; and each row's episode id."""
-    rng = np.random.default_rng(seed)
-    centre = 0.5 * rng.standard_normal((episodes, d))
-    state = rng.standard_normal((episodes, d))
-    out = np.empty((episodes, length, d), dtype=np.float32)
-    for t in range(length):
-        out[:, t] = centre + state + shift
-        state = 0.98 * state + np.sqrt(1 - 0.98 ** 2) * rng.standard_normal((episodes, d))
-    return out.reshape(-1, d), np.repeat(np.arange(episodes), length)
-
-
 def test_episode_helpers_keep_episodes_whole():
     ends = np.array([False, False, True, False, True, True, False, False, True])
     assert episode_ids(ends).tolist() == [0, 0, 0, 1, 1, 2, 3, 3, 3]
@@ -137,9 +123,9 @@ def test_episode_helpers_keep_episodes_whole():
 def test_an_episode_split_null_covers_a_second_sample_of_the_process_and_a_row_split_does_not():
     """Issue 34: halves sharing episodes give a null near 0 that another sample of the same process
     (the teacher's own rollouts) never reaches; halves of whole episodes give the level it reads."""
-    x, x_ids = _trajectories(60, 0)
-    y, y_ids = _trajectories(30, 1)
-    shifted, _ = _trajectories(30, 2, shift=0.8)
+    x, x_ids = ar1_episodes(60, 0)
+    y, y_ids = ar1_episodes(30, 1)
+    shifted, _ = ar1_episodes(30, 2, shift=0.8)
     nulls = [split_half_null(x, knn_kl, seed, x_ids) for seed in range(6)]  # measured: 40.8 to 42.2 nats
     assert abs(split_half_null(x, knn_kl)) < 1 < min(nulls) - 10  # the row split: ~0
     half = x[:1500]  # 30 whole episodes, as many states as each null half
@@ -152,9 +138,9 @@ def test_an_episode_split_null_covers_a_second_sample_of_the_process_and_a_row_s
 def test_the_classifier_holds_out_whole_episodes():
     """Rows of one process split by rows: the classifier recognises the held-out rows' episodes
     (AUC ~0.8); by whole episodes it reads ~0.5, and a shift stays clear."""
-    x, x_ids = _trajectories(60, 0)
-    y, y_ids = _trajectories(60, 1)
-    shifted, shifted_ids = _trajectories(60, 2, shift=0.6)
+    x, x_ids = ar1_episodes(60, 0)
+    y, y_ids = ar1_episodes(60, 1)
+    shifted, shifted_ids = ar1_episodes(60, 2, shift=0.6)
     config = ClassifierConfig(epochs=5)
     by_episode = classifier_test(x, y, config, x_episodes=x_ids, y_episodes=y_ids)
     assert abs(by_episode.auc - 0.5) < 0.1 and by_episode.held_out == (900, 900)  # 18 of 60 episodes

@@ -9,6 +9,7 @@ import json
 
 import numpy as np
 import pytest
+from trajectories import ar1_episodes
 
 from mop_core.catalogue import build_catalogue
 from mop_core.distill.distiller import distill_config
@@ -63,28 +64,13 @@ def test_more_shift_ranks_higher_on_every_measure(measured):
     assert 0.05 < near["kl"] < 0.4 and 2.5 < far["kl"] < 6
 
 
-def _trajectories(episodes: int, seed: int, shift: float = 0.0, length: int = 50, d: int = 24
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Episodes of a trajectory-correlated process (like a policy's rollouts): per episode a centre
-    ~ N(0, 0.25 I) plus an AR(1) walk with autocorrelation 0.98 (consecutive states near-duplicates),
-    every state moved by ``shift`` on each axis; and each row's episode id."""
-    rng = np.random.default_rng(seed)
-    centre = 0.5 * rng.standard_normal((episodes, d))
-    state = rng.standard_normal((episodes, d))
-    out = np.empty((episodes, length, d), dtype=np.float32)
-    for t in range(length):
-        out[:, t] = centre + state + shift
-        state = 0.98 * state + np.sqrt(1 - 0.98 ** 2) * rng.standard_normal((episodes, d))
-    return out.reshape(-1, d), np.repeat(np.arange(episodes), length)
-
-
 def test_episode_splits_read_one_process_within_its_null_and_a_shift_above_it():
-    """Issue 34: the teacher's own rollouts (same process) read 30 nats against a row-split null of
+    """The record before episode splits: the teacher's own rollouts (same process) read 30 nats against a row-split null of
     -1.25. Split by whole episodes, a second sample of the process reads within the null and a mean
     shift of 0.6 per axis above it; without episode ids (rows as episodes) the same sample does not."""
-    teacher, teacher_ids = _trajectories(60, 0)
-    same, same_ids = _trajectories(60, 1)
-    shifted, shifted_ids = _trajectories(60, 2, shift=0.6)
+    teacher, teacher_ids = ar1_episodes(60, 0)
+    same, same_ids = ar1_episodes(60, 1)
+    shifted, shifted_ids = ar1_episodes(60, 2, shift=0.6)
     sets = {"same": same, "shifted": shifted}
     config = MeasureConfig(states=2000, k=3, bootstrap=8, classifier_epochs=5, threads=1)
     measured = measure_shift(sets, teacher, config, 0, {"reference": teacher_ids, "same": same_ids,
@@ -106,8 +92,8 @@ def test_reweighting_weights_come_from_classifiers_that_did_not_see_their_episod
     order are cut into their episodes when no ids are given, and a seed repeats its weights."""
     from mop_core.distill.corrections import ReweightConfig, block_episodes, density_weights
 
-    teacher, teacher_ids = _trajectories(40, 0)
-    data, data_ids = _trajectories(40, 1)
+    teacher, teacher_ids = ar1_episodes(40, 0)
+    data, data_ids = ar1_episodes(40, 1)
     data[500:] += 1.0  # 10 of 40 episodes from the teacher's process, the rest shifted
     config = ReweightConfig(clip=10.0, states=2000, epochs=10)
     weights, info = density_weights(data, teacher, config, seed=3, episode_rows=50)
@@ -116,7 +102,7 @@ def test_reweighting_weights_come_from_classifiers_that_did_not_see_their_episod
     assert np.array_equal(weights, again)  # blocks of 50 rows are these episodes; same seed, same weights
     assert block_episodes(2000, 50).tolist() == data_ids.tolist()
     assert block_episodes(100, 1000).max() >= 7  # MIN_BLOCKS (8) blocks at least
-    same, _ = _trajectories(40, 2)
+    same, _ = ar1_episodes(40, 2)
     assert abs(density_weights(same, teacher, config, seed=3, episode_rows=50)[1]["reweight_auc"] - 0.5) < 0.12
 
 
