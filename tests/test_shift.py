@@ -1,7 +1,7 @@
 """mop_core/shift.py (issue 18 part 4): the kNN KL estimator against Gaussians of known KL in 2, 8 and 24
 dimensions and on identical distributions, its split-half null and bootstrap interval; the classifier
 two-sample test's AUC and density ratio against the Gaussians' own; every split by whole episodes on a
-trajectory-correlated process (issue 34)."""
+trajectory-correlated process."""
 
 from __future__ import annotations
 
@@ -121,7 +121,7 @@ def test_episode_helpers_keep_episodes_whole():
 
 
 def test_an_episode_split_null_covers_a_second_sample_of_the_process_and_a_row_split_does_not():
-    """Issue 34: halves sharing episodes give a null near 0 that another sample of the same process
+    """Halves sharing episodes give a null near 0 that another sample of the same process
     (the teacher's own rollouts) never reaches; halves of whole episodes give the level it reads."""
     x, x_ids = ar1_episodes(60, 0)
     y, y_ids = ar1_episodes(30, 1)
