@@ -92,7 +92,7 @@ def summary_prose(decisions: Sequence[Decision], whose: str) -> str:
 
     def keys(ds: Sequence[Decision]) -> str:
         return ", ".join(d.finding.key for d in ds) or "none"
-    return (f"**What this run shows.** Of {len(decisions)} {whose}, this run reproduces {len(counts[REPRODUCED])} "
+    return (f"**What this run shows.** Of the {len(decisions)} {whose}, it reproduces {len(counts[REPRODUCED])} "
             f"({keys(counts[REPRODUCED])}), contradicts {len(counts[CONTRADICTED])} "
             f"({keys(counts[CONTRADICTED])}) and cannot decide {len(counts[INCONCLUSIVE])}: "
             f"{len(not_run)} not run at this profile's levels or sizes ({keys(not_run)}), {len(few)} with fewer "
@@ -133,12 +133,12 @@ def verdict_section(decisions: Sequence[Decision], params: Mapping[str, Any] | N
     out = ["## Verdicts: what this run reproduces", ""] + scale_lines(params, thesis)
     out += ["Each row quotes a finding of the thesis (its words, its section and the line of "
             "shared/reference/mop-thesis.txt), the statistic of this run that tests it and the verdict.", "",
-            table(HEADER, rows(thesis_rows)), "", summary_prose(thesis_rows, "the thesis's findings"), "",
+            table(HEADER, rows(thesis_rows)), "", summary_prose(thesis_rows, "findings of the thesis"), "",
             RULE.format(margin=RETURN_MARGIN, tau=TAU_MARGIN), ""]
     if own_rows:
         out += ["### This run's own findings", "",
                 "Statements of this study, not of the thesis, tested by the same rule.", "",
-                table(HEADER, rows(own_rows)), "", summary_prose(own_rows, "its own findings"), ""]
+                table(HEADER, rows(own_rows)), "", summary_prose(own_rows, "findings of its own"), ""]
     return "\n".join(out)
 
 

@@ -100,7 +100,7 @@ def paired(label: str, x: Mapping[int, float], y: Mapping[int, float], unit: str
     if not seeds:
         return not_run(label, "no training seed in common")
     ci = seed_interval([x[s] - y[s] for s in seeds])
-    why = "" if ci["ci_low"] is not None else f"{len(seeds)} paired seeds: fewer than {MIN_SEEDS_FOR_SEED_CI}"
+    why = "" if ci["ci_low"] is not None else f"{len(seeds)} seeds: fewer than {MIN_SEEDS_FOR_SEED_CI}"
     return Effect(label, ci["mean"], ci["ci_low"], ci["ci_high"], len(seeds), unit, why)
 
 

@@ -389,9 +389,17 @@ def _check_report(repo: Path) -> None:
                   "Table 6.1", "Figure 6.3", "Figure 6.4", "Figure 6.5", "Figure 6.9", "Table 6.2", "Table 6.3",
                   "Gradient conflict"):
         assert title in report
-    assert report.index("Table 4.1") < report.index("Figure 5.1") < report.index("Figure 5.8") < report.index(
-        "Appendix E") < report.index("Table 6.1") < report.index(
-        "Figure 6.5") < report.index("Table 6.3")
+    # the report opens with the verdicts (a row per registered finding, each with its verdict), then the
+    # sections in the thesis's order
+    from mop_core.findings import FINDINGS
+    verdicts, body = report[:report.index("## 1. ")], report[report.index("## 1. "):]
+    assert verdicts.index("## Verdicts") < verdicts.index("**Scale.**")
+    assert sum(verdicts.count(f"**{v}**") for v in ("reproduced", "contradicted", "inconclusive")) == len(FINDINGS)
+    recorded = json.loads((repo / "results" / "verdicts.json").read_text())
+    assert set(recorded["findings"]) == set(FINDINGS) and sum(recorded["thesis_findings"].values()) > 30
+    assert body.index("Table 4.1") < body.index("Figure 5.1") < body.index("Figure 5.8") < body.index(
+        "Appendix E") < body.index("Table 6.1") < body.index(
+        "Figure 6.5") < body.index("Table 6.3")
     assert "| 8 | mse-w8 | 1 |" in report and "| pairwise | mse-rank_pairwise | 1 |" in report
     assert "| medium | stand | DS teacher |" in report
     assert "| medium | OQS (target critic) | walk | D_stand->walk" in report

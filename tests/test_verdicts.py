@@ -54,7 +54,7 @@ def test_equality_claims_need_the_interval_inside_the_margin():
 def test_fewer_than_three_runs_or_a_missing_run_are_inconclusive_and_say_why():
     two = paired("stand", {0: 5.0, 1: 6.0}, {0: 1.0, 1: 2.0})
     assert two.value == pytest.approx(4.0) and not two.decided
-    assert cell_verdict(two, ABOVE) == (INCONCLUSIVE, "2 paired seeds: fewer than 3")
+    assert cell_verdict(two, ABOVE) == (INCONCLUSIVE, "2 seeds: fewer than 3")
     assert cell_verdict(Effect("expert", None, why="needs expert teachers"), ABOVE) == \
         (INCONCLUSIVE, "needs expert teachers")
 
@@ -127,6 +127,6 @@ def test_every_finding_runs_on_an_empty_run_and_the_table_says_why_nothing_is_de
     decisions = decide(Evidence(StudyResults(tasks=TASKS, levels=["medium"], settings={})))
     assert len(decisions) == len(FINDINGS) and {d.verdict for d in decisions} == {INCONCLUSIVE}
     section = verdict_section(decisions)
-    assert section.startswith("## Verdicts") and "this run reproduces 0" in section
+    assert section.startswith("## Verdicts") and "it reproduces 0" in section
     record = verdict_record(decisions)
     assert record["thesis_findings"] == {REPRODUCED: 0, CONTRADICTED: 0, INCONCLUSIVE: len(THESIS)}
