@@ -3,7 +3,8 @@
 :func:`decide` measures every registered finding (mop_core.findings) on a run and applies the rule of
 mop_core.verdicts; :func:`verdict_section` renders the two tables (the thesis's findings, then this
 run's own) with the prose of what this run shows, and :func:`verdict_record` the same as a JSON record
-(``results/verdicts.json``: ``dvc metrics diff`` compares verdict counts across runs).
+(``results/verdicts.json``; its counts go into ``results/metrics.json``, so ``dvc metrics diff``
+compares them across runs).
 """
 
 from __future__ import annotations

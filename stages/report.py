@@ -6,8 +6,8 @@ Reads only what the other stages wrote under results/ (metrics JSON, learning-cu
 for the runs of the study's catalogue; a missing file means that part of the study was not run, and
 its section says so. The report opens with this profile's scale beside the thesis's (profiles/thesis.yaml)
 and the verdict of every finding (mop_core/findings.py). Writes results/report.md, results/report/*.png,
-results/verdicts.json (verdicts and their effects) and results/metrics.json (the headline numbers:
-mop_core/headline.py).
+results/verdicts.json (every finding's verdict and effects) and results/metrics.json (the headline
+numbers, mop_core/headline.py, and the verdict counts).
 """
 
 from __future__ import annotations
@@ -46,8 +46,10 @@ def main() -> None:
     markdown = render_report(results, FIGURES, prefix, later, [shift], verdict_section(decisions, params, thesis))
     with atomic_path(REPORT) as tmp:
         tmp.write_text(markdown)
-    write_json(VERDICTS, verdict_record(decisions))
-    write_json(HEADLINE_METRICS, headline_metrics(results.evaluation, results.shared, results.tasks))
+    record = verdict_record(decisions)
+    write_json(VERDICTS, record)
+    headline = headline_metrics(results.evaluation, results.shared, results.tasks)
+    write_json(HEADLINE_METRICS, headline | {"verdicts": record["thesis_findings"]})  # counts: dvc metrics diff
     print(f"report: wrote {REPORT} ({len(markdown.splitlines())} lines) and {FIGURES}/")
 
 

@@ -65,9 +65,10 @@ def test_more_shift_ranks_higher_on_every_measure(measured):
 
 
 def test_episode_splits_read_one_process_within_its_null_and_a_shift_above_it():
-    """The record before episode splits: the teacher's own rollouts (same process) read 30 nats against a row-split null of
-    -1.25. Split by whole episodes, a second sample of the process reads within the null and a mean
-    shift of 0.6 per axis above it; without episode ids (rows as episodes) the same sample does not."""
+    """The record before episode splits: the teacher's own rollouts (same process) read 30 nats against
+    a row-split null of -1.25. Split by whole episodes, a second sample of the process reads within the
+    null and a mean shift of 0.6 per axis above it; without episode ids (rows as episodes) the same
+    sample does not."""
     teacher, teacher_ids = ar1_episodes(60, 0)
     same, same_ids = ar1_episodes(60, 1)
     shifted, shifted_ids = ar1_episodes(60, 2, shift=0.6)
