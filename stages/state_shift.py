@@ -100,10 +100,11 @@ def main() -> None:
     require_inputs([EVAL_METRICS], "eval")
     records = {label: [read_json(run.paths.metrics) for run in runs] for label, runs in all_groups.items()}
     norms = normalisers(study.tasks, COLLECT_METRICS)
-    returns, teachers = eval_returns(read_json(EVAL_METRICS), all_groups, study.tasks,
+    evaluation = read_json(EVAL_METRICS)
+    returns, teachers = eval_returns(evaluation, all_groups, study.tasks,
                                      {t: teacher_group(lv, "deterministic") for t, lv in zip(study.tasks, levels)},
                                      teacher_seed)
-    table = student_table(records, returns, teachers, study.tasks, norms, params["eval"]["episodes"])
+    table = student_table(records, returns, teachers, study.tasks, norms, evaluation["eval"]["episodes_per_job"])
     metrics["students"] = table
     metrics["normalisers"] = norms
     metrics["student_width"] = width
