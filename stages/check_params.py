@@ -2,6 +2,9 @@
 
     python stages/check_params.py
 
+dvc.yaml has this stage depend on the whole params file (``params.yaml:`` with no keys), so any
+edit reruns it, a new or misspelt section (``distil:`` beside ``distill:``) included, which
+mop_core.study_params refuses with the unknown keys and the settings that would have no effect.
 Every stage of dvc.yaml depends on this stage's output, whose content never changes while the
 params are valid: a valid edit reruns only the stages whose own params changed, and an invalid one
 stops ``dvc repro`` here, with one line naming the key, before DVC deletes any other stage's
