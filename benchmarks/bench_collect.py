@@ -26,9 +26,9 @@ from mop_core.agents.td3 import TD3, TD3Config
 from mop_core.config import from_mapping
 from mop_core.data import ReplayBuffer
 from mop_core.data.hdf5 import Dataset
-from mop_core.envs import VectorStep, VectorWalkerEnv, WalkerEnv, set_step_threads
+from mop_core.envs import VectorStep, VectorWalkerEnv, WalkerEnv
 from mop_core.relabel import relabel_rewards
-from mop_core.runtime import configure_compute
+from mop_core.runtime import configure_compute, set_step_threads
 
 ROOT = Path(__file__).resolve().parents[1]
 

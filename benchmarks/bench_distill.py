@@ -29,14 +29,14 @@ import yaml
 from timing import rate
 
 from mop_core.config import from_mapping
+from mop_core.distill.checkpoint import student_policy
 from mop_core.distill.distiller import DistillConfig, Distiller, cumulative_weights, weighted_rows
-from mop_core.distill.run import student_policy
 from mop_core.distill.states import TaskStates, task_states, teacher_outputs
-from mop_core.distill.variants import variant_config
 from mop_core.nn import DeterministicActor
 from mop_core.ranking import RANKING_LOSSES
 from mop_core.rollout import episode_returns, policies_returns_and_states, policy_threads, returns_and_states
 from mop_core.runtime import configure_compute
+from mop_core.variants import Ranking
 
 ROOT = Path(__file__).resolve().parents[1]
 STATES = 100_000  # per task (the quick profile's dataset size)
@@ -132,10 +132,10 @@ def ranking_rates(name: str, config: DistillConfig, teacher_sizes: tuple[int, ..
     """Time per update of a group of ``runs`` students with each ranking regulariser over the plain group's."""
     _, targets = _targets(teacher_sizes)
     seconds = {}
-    for variant in ["", *(f"rank_{loss}" for loss in RANKING_LOSSES)]:
-        group = Distiller(variant_config(config, variant), [targets] * runs, 24, 6, list(range(runs)))
-        seconds[variant] = 1.0 / rate(lambda: [group.update() for _ in range(steps)], steps)
-    cells = ", ".join(f"{v.removeprefix('rank_')} {seconds[v] / seconds['']:.2f}x" for v in seconds if v)
+    for loss in ["", *RANKING_LOSSES]:
+        group = Distiller(Ranking(loss).apply(config) if loss else config, [targets] * runs, 24, 6, list(range(runs)))
+        seconds[loss] = 1.0 / rate(lambda: [group.update() for _ in range(steps)], steps)
+    cells = ", ".join(f"{loss} {seconds[loss] / seconds['']:.2f}x" for loss in seconds if loss)
     print(f"{name}: ranking regulariser ({config.ranking.states} state(s)/task/step, {runs} runs, student "
           f"{list(config.student.hidden_sizes)}) time per update / plain group's: {cells}; plain "
           f"{1e3 * seconds['']:.2f} ms")

@@ -34,8 +34,8 @@ from mop_core.agents.pbrl import PBRL
 from mop_core.agents.pbrl_group import PBRLGroup, stack_batches
 from mop_core.agents.td3 import TD3, TD3Config
 from mop_core.config import from_mapping
+from mop_core.distill.checkpoint import student_policy
 from mop_core.distill.distiller import Distiller
-from mop_core.distill.run import student_policy
 from mop_core.distill.states import TaskStates
 from mop_core.distill.student import Student
 from mop_core.nn import EnsembleCritic

@@ -5,26 +5,13 @@ from __future__ import annotations
 import hashlib
 import importlib.metadata
 import os
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import torch
 
 from mop_core.config import InputFileError, first_line
-from mop_core.data import atomic_path
-
-
-@dataclass(frozen=True)
-class RunPaths:
-    """Where a training run writes: the final checkpoint, its metrics, its curve, the resume file, and
-    its timing record (seconds and machine facts, :mod:`mop_core.timings`; None: not written)."""
-
-    checkpoint: Path
-    metrics: Path
-    curve: Path
-    resume: Path
-    timing: Path | None = None
+from mop_core.files import atomic_path
 
 
 def state_sha256(state: dict[str, torch.Tensor]) -> str:

@@ -25,16 +25,9 @@ from mop_core.runs import (
     MultitaskRun,
     StudentRun,
     TeacherRun,
-    composed_variant,
-    correction_variant,
     cross_group,
     own_teacher,
-    ranking_variant,
     shared_teacher_runs,
-    single_task_of,
-    single_variant,
-    size_variant,
-    width_variant,
 )
 from mop_core.runtime import derive_seeds
 from mop_core.study import (
@@ -48,6 +41,7 @@ from mop_core.study import (
     teacher_grid,
 )
 from mop_core.tasks import data_tasks, substitute_tasks
+from mop_core.variants import SHARING_VARIANTS, Composed, Corrected, Ranking, Sharing, SingleTask, Size, Variant, Width
 
 LOSS_ACTORS = {name: loss.teacher_actor for name, loss in LOSSES.items()}  # what distill_grid checks
 
@@ -93,12 +87,12 @@ class Catalogue:
     # stage rolls them out like every policy; the state_shift stage reads their returns from it
     shift_students: tuple[StudentRun, ...] = ()
 
-    def student_batches(self) -> dict[str, list[StudentRun]]:
+    def student_entries(self) -> dict[str, list[StudentRun]]:
         """distill entry (``<loss>-<pairing>``) -> the students it trains together (one per seed)."""
-        batches: dict[str, list[StudentRun]] = {}
+        entries: dict[str, list[StudentRun]] = {}
         for run in self.students + self.shift_students:
-            batches.setdefault(run.batch, []).append(run)
-        return batches
+            entries.setdefault(run.entry, []).append(run)
+        return entries
 
     def student_groups(self) -> dict[str, list[StudentRun]]:
         """group -> its students (one per seed), in grid order."""
@@ -182,12 +176,12 @@ class Catalogue:
         """The data-sharing students of the study's tasks (thesis 6.4: DS, OQS)."""
         return [run for run in self.students if run.shared_states and not run.substitute]
 
-    def shared_teacher_batches(self) -> dict[str, list[TeacherRun]]:
+    def shared_teacher_entries(self) -> dict[str, list[TeacherRun]]:
         """train_shared_teachers entry (``<kind>-<level>-<actor>``) -> the teachers it trains together."""
-        batches: dict[str, list[TeacherRun]] = {}
+        entries: dict[str, list[TeacherRun]] = {}
         for run in self.shared_teachers:
-            batches.setdefault(run.batch, []).append(run)
-        return batches
+            entries.setdefault(run.entry, []).append(run)
+        return entries
 
     def student_comparisons(self) -> list[tuple[str, str]]:
         """(X, Y) student groups compared head to head: every pair of losses on the same pairing, and
@@ -202,15 +196,32 @@ class Catalogue:
             plain = StudentRun("mse", run.pairing, run.seed, run.teachers).group
             if (run.group, plain) not in pairs and plain in by_pairing.get(run.pairing, []):
                 pairs.append((run.group, plain))
-        mop = {run.scope: run.group for run in self.substitute_students() if run.variant == "mop"}
+        mop = {run.scope: run.group for run in self.substitute_students() if run.variant == Sharing("mop")}
         for run in self.substitute_students():  # against MOP's student of the same substituted task set
-            if run.variant != "mop" and run.scope in mop and (run.group, mop[run.scope]) not in pairs:
+            if run.variant != Sharing("mop") and run.scope in mop and (run.group, mop[run.scope]) not in pairs:
                 pairs.append((run.group, mop[run.scope]))
         return pairs
 
+    def teacher_entries(self) -> dict[str, list[TeacherRun]]:
+        """train_teachers entry (``<level>-<actor>``) -> the teachers it trains together (every task and seed)."""
+        entries: dict[str, list[TeacherRun]] = {}
+        for run in self.teachers:
+            entries.setdefault(run.entry, []).append(run)
+        return entries
+
+    def distill_stages(self) -> dict[str, dict[str, list[StudentRun]]]:
+        """dvc.yaml distill stage -> its entries (:meth:`student_entries`): ``distill`` for plain MOP, the
+        variant's :attr:`~mop_core.variants.Variant.stage`, ``distill_substitute`` for a substituted task set."""
+        stages: dict[str, dict[str, list[StudentRun]]] = {}
+        for entry, runs in self.student_entries().items():
+            first = runs[0]
+            stage = "distill_substitute" if first.substitute else first.variant.stage if first.variant else "distill"
+            stages.setdefault(stage, {})[entry] = runs
+        return stages
+
 
 def make_student(loss: str, pairing: str, seed: int, tasks: tuple[str, ...], levels: tuple[str, ...],
-                 teacher_seed: int, variant: str = "") -> StudentRun:
+                 teacher_seed: int, variant: Variant | None = None) -> StudentRun:
     """The student of (loss, pairing, seed[, variant]): per task, the teacher of the pairing's level,
     the loss's actor type and ``teacher_seed``."""
     actor = LOSSES[loss].teacher_actor
@@ -218,56 +229,56 @@ def make_student(loss: str, pairing: str, seed: int, tasks: tuple[str, ...], lev
                                                  for task, level in zip(tasks, levels)), variant)
 
 
-def make_sharing_student(variant: str, level: str, seed: int, tasks: tuple[str, ...],
+def make_sharing_student(variant: Sharing, level: str, seed: int, tasks: tuple[str, ...],
                          teacher_seed: int, substitute: str = "") -> StudentRun:
     """A data-sharing MSE student (thesis 6.4) of one level, on the union of the tasks' datasets:
     ``ds`` learns from the DS teachers; ``oqs_<judge>`` from the Q-switch over task i's teachers on
     D_{j->i} for every j (i = j: MOP's own teacher, reused), its ``teachers`` MOP's. With a
     ``substitute``, on the substituted task set (``tasks`` with its base task replaced, the base's
-    datasets relabelled to it); there ``mop`` is plain MOP's student of that set."""
+    datasets relabelled to it); there ``Sharing("mop")`` is plain MOP's student of that set."""
     if substitute:
         tasks = substitute_tasks(tasks, substitute)
     data = data_tasks(tasks, substitute)
     own = tuple(own_teacher(task, source, level, teacher_seed) for task, source in zip(tasks, data))
     where = {"substitute": substitute}
-    if variant == "mop":
+    if variant.kind == "mop":
         return StudentRun("mse", level, seed, own, variant, **where)
-    if variant == "ds":
+    if variant.kind == "ds":
         shared = tuple(TeacherRun(task, level, "deterministic", teacher_seed, data) for task in tasks)
-        return StudentRun("mse", level, seed, shared, variant, shared_states=True, **where)
+        return StudentRun("mse", level, seed, shared, variant, **where)
     candidates = tuple(tuple(own[i] if j == data[i] else TeacherRun(task, level, "deterministic", teacher_seed, (j,))
                              for j in data) for i, task in enumerate(tasks))
-    return StudentRun("mse", level, seed, own, variant, candidates, shared_states=True, **where)
+    return StudentRun("mse", level, seed, own, variant, candidates, **where)
 
 
-def make_structure_student(variant: str, pairing: str, seed: int, tasks: tuple[str, ...], levels: tuple[str, ...],
+def make_structure_student(variant: Variant, pairing: str, seed: int, tasks: tuple[str, ...], levels: tuple[str, ...],
                            teacher_seed: int) -> StudentRun:
     """A common-structure MSE student (thesis 6.3) of the study's ``tasks`` (the pairing's ``levels``,
-    one per task); a single-task variant (``single_<task>``) learns from that task's teacher alone."""
-    task = single_task_of(variant)
+    one per task); a single-task variant learns from that task's teacher alone."""
+    task = variant.only_task
     if task is not None:
         i = tasks.index(task)
         tasks, levels = (task,), (levels[i],)
     return make_student("mse", pairing, seed, tasks, levels, teacher_seed, variant)
 
 
-def shift_variants(params: Mapping[str, Any]) -> tuple[str, tuple[str, ...]]:
+def shift_variants(params: Mapping[str, Any]) -> tuple[str, tuple[Variant, ...]]:
     """The state_shift section's pairing and student variants: per composed dataset every width, the
     dataset sizes, then per correction, dataset and width the correcting students (dvc.yaml's order)."""
     grid = shift_grid(params, study_config(params))
-    return grid.pairing, (tuple(composed_variant(d, w) for d in grid.datasets for w in grid.widths)
-                          + tuple(size_variant(p) for p in grid.data_percents)
-                          + tuple(correction_variant(c, d, w) for c in grid.corrections
+    return grid.pairing, (tuple(Composed(d, w) for d in grid.datasets for w in grid.widths)
+                          + tuple(Size(p) for p in grid.data_percents)
+                          + tuple(Corrected(c, d, w) for c in grid.corrections
                                   for d in grid.correction_datasets for w in grid.correction_widths))
 
 
-def structure_variants(params: Mapping[str, Any]) -> tuple[str, tuple[str, ...]]:
+def structure_variants(params: Mapping[str, Any]) -> tuple[str, tuple[Variant, ...]]:
     """The common_structure section's pairing and student variants (widths, ranking losses, then the
     single-task students)."""
     grid = structure_grid(params, study_config(params))
-    return grid.pairing, (tuple(width_variant(w) for w in grid.widths)
-                          + tuple(ranking_variant(loss) for loss in grid.ranking_losses)
-                          + tuple(single_variant(task) for task in grid.single_task))
+    return grid.pairing, (tuple(Width(w) for w in grid.widths)
+                          + tuple(Ranking(loss) for loss in grid.ranking_losses)
+                          + tuple(SingleTask(task) for task in grid.single_task))
 
 
 def build_catalogue(params: Mapping[str, Any]) -> Catalogue:
@@ -290,11 +301,12 @@ def build_catalogue(params: Mapping[str, Any]) -> Catalogue:
     sharing = sharing_grid(params, study)
     shared_teachers = tuple(t for level in sharing.levels for t in shared_teacher_runs(
         study.tasks, level, sharing.teachers, grid.teacher_seed, sharing.substitutes))
-    students += tuple(make_sharing_student(variant, level, seed, study.tasks, grid.teacher_seed)
-                      for level in sharing.levels for variant in sharing.students for seed in grid.seeds)
-    students += tuple(make_sharing_student(variant, level, seed, study.tasks, grid.teacher_seed, substitute)
+    students += tuple(make_sharing_student(SHARING_VARIANTS[name], level, seed, study.tasks, grid.teacher_seed)
+                      for level in sharing.levels for name in sharing.students for seed in grid.seeds)
+    students += tuple(make_sharing_student(SHARING_VARIANTS[name], level, seed, study.tasks, grid.teacher_seed,
+                                           substitute)
                       for substitute in sharing.substitutes for level in sharing.levels
-                      for variant in sharing.substitute_students for seed in grid.seeds)
+                      for name in sharing.substitute_students for seed in grid.seeds)
     return Catalogue(
         tasks=study.tasks, levels=study.levels, study_seed=study.seed,
         behaviour=tuple(BehaviourRun(task, level) for task in study.tasks for level in BEHAVIOUR_LEVELS),
@@ -313,7 +325,7 @@ def student_inputs(runs: list[StudentRun]) -> dict:
     cannot list a matrix entry's dependencies per entry: treeverse/dvc#8171)."""
     first = runs[0]
     if any(run.all_teachers != first.all_teachers for run in runs):
-        raise ValueError(f"runs: the students of {first.batch} must learn from the same teachers")
+        raise ValueError(f"runs: the students of {first.entry} must learn from the same teachers")
     datasets = list(dict.fromkeys([*first.input_datasets, *(d for t in first.all_teachers for d in t.datasets)]))
     return {"students": [run.name for run in runs], "tasks": list(first.tasks),
             "teachers": [{"path": t.paths.checkpoint.as_posix(), "sha256": file_sha256(t.paths.checkpoint)}
@@ -329,5 +341,5 @@ def check_student_inputs(runs: list[StudentRun], record: dict, where: Path) -> N
         return
     changed = [new["path"] for kind in ("teachers", "datasets")
                for old, new in zip(record.get(kind, []), now[kind]) if old != new]
-    what = changed[0] if changed else f"the inputs of students {runs[0].batch}"
+    what = changed[0] if changed else f"the inputs of students {runs[0].entry}"
     raise InputFileError(f"{what}: changed since {where} was written; run `dvc repro` (student_inputs first)")

@@ -30,8 +30,10 @@ from tqdm import tqdm
 from mop_core.agents.td3 import TD3, TD3Config, actor_from_checkpoint
 from mop_core.artifacts import save_checkpoint, state_sha256, write_curve
 from mop_core.config import from_mapping, require, to_dict
-from mop_core.data import LEVELS, ReplayBuffer, write_dataset, write_json
+from mop_core.data.buffer import ReplayBuffer
+from mop_core.data.hdf5 import LEVELS, write_dataset
 from mop_core.envs import ACT_DIM, OBS_DIM, PHYSICS_DIM, WalkerEnv
+from mop_core.files import write_json
 from mop_core.layout import CollectPaths
 from mop_core.nn import numpy_policy
 from mop_core.rollout import collect_episodes, episode_returns, trajectory_returns

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
@@ -39,9 +40,11 @@ import numpy as np
 
 from mop_core.config import from_mapping, keys_under, require
 from mop_core.data import write_dataset
-from mop_core.layout import REFERENCE, heldout_name
+from mop_core.layout import REFERENCE, composed_file, heldout_name
 from mop_core.rollout import Policy, collect_episodes
+from mop_core.runs import TeacherRun
 from mop_core.runtime import derive_seeds
+from mop_core.study import pairing_levels, section, shift_grid, study_config
 
 REST_POLICIES = ("noise", "random")
 POOLS = ("teacher", *REST_POLICIES)
@@ -242,3 +245,32 @@ def compose_teacher_data(teacher_path: Path, task: str, level: str, config: Comp
              "behaviour_sha256": teacher.actor_sha256}
     summary = compose_task(teacher.act, task, level, config, seed, episode_length, dataset_writer(path_of, attrs))
     return {"datasets": summary, "teacher": str(teacher_path), "seconds": round(time.perf_counter() - started, 1)}
+
+
+def composing_teachers(params: Mapping[str, Any]) -> tuple[TeacherRun, ...]:
+    """Per study task, the deterministic MOP teacher of the ``state_shift.pairing`` level (seed
+    ``distill.teacher_seed``) whose rollouts compose its datasets: the teachers the state-shift students
+    learn from (mop_core.catalogue, tested equal); () when ``state_shift.datasets`` composes none. From
+    the study, state_shift and distill.teacher_seed params alone (the compose stage's)."""
+    study = study_config(params)
+    grid = shift_grid(params, study)
+    if not grid.datasets:
+        return ()
+    seed = section(params, "distill")["teacher_seed"]
+    return tuple(TeacherRun(task, level, "deterministic", seed)
+                 for task, level in zip(study.tasks, pairing_levels(grid.pairing, study, "state_shift.pairing")))
+
+
+def compose_jobs(teachers: Sequence[TeacherRun], config: ComposeConfig, seed: int, episode_length: int) -> list[tuple]:
+    """The :func:`compose_teacher_data` jobs of ``teachers`` (one per task), each writing its datasets to
+    data/composed/<task>-<level>-<name>.hdf5 (mop_core.layout.composed_file)."""
+    return [(t.paths.checkpoint, t.task, t.level, config, seed, episode_length, partial(composed_file, t.task, t.level))
+            for t in teachers]
+
+
+def summary_lines(metrics: Mapping[str, Mapping]) -> list[str]:
+    """One line per composed task (``<task>-<level>``: :func:`compose_teacher_data`'s summary): each
+    dataset's mean episode return and the seconds it took."""
+    return [f"compose {key}: episode returns "
+            + ", ".join(f"{name} {d['return_mean']:.0f}" for name, d in summary["datasets"].items())
+            + f" ({summary['seconds']:.0f} s)" for key, summary in metrics.items()]

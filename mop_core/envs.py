@@ -21,6 +21,7 @@ from typing import Any, Sequence
 import mujoco
 import numpy as np
 
+from mop_core.runtime import step_threads
 from mop_core.tasks import WalkerTask, get_task
 
 OBS_DIM = 24
@@ -179,27 +180,18 @@ class VectorStep:
     features: np.ndarray  # [K, 3]
 
 
-_STEP_THREADS = 1  # threads a VectorWalkerEnv steps its members with (MuJoCo releases the GIL while it steps)
-_POOL: ThreadPoolExecutor | None = None
-
-
-def set_step_threads(threads: int) -> None:
-    """Step the members of every :class:`VectorWalkerEnv` in ``threads`` threads (each a share of the
-    walkers; results do not depend on it). ``mop_core.runtime.configure_compute`` sets it to the
-    process's torch threads: a stage given 2 cores uses both for its rollouts too."""
-    global _STEP_THREADS, _POOL
-    if threads < 1:
-        raise ValueError(f"threads: expected a positive integer, got {threads!r}")
-    if threads != _STEP_THREADS and _POOL is not None:
-        _POOL.shutdown()
-        _POOL = None
-    _STEP_THREADS = threads
+_POOL: ThreadPoolExecutor | None = None  # MuJoCo releases the GIL while it steps
+_POOL_THREADS = 0
 
 
 def _pool() -> ThreadPoolExecutor:
-    global _POOL
+    """The threads a VectorWalkerEnv steps its members with: :func:`mop_core.runtime.step_threads` of them."""
+    global _POOL, _POOL_THREADS
+    if _POOL is not None and _POOL_THREADS != step_threads():
+        _POOL.shutdown()
+        _POOL = None
     if _POOL is None:
-        _POOL = ThreadPoolExecutor(_STEP_THREADS, thread_name_prefix="walker-step")
+        _POOL, _POOL_THREADS = ThreadPoolExecutor(step_threads(), thread_name_prefix="walker-step"), step_threads()
     return _POOL
 
 
@@ -231,7 +223,7 @@ class VectorWalkerEnv:
     for bit :class:`WalkerEnv`'s dm_control step's over whole episodes, rewards equal to the last
     place (the formula vs dm_control's ``tolerance``; tested), with dm_control's per-step Python (named indexing,
     the observation dict, the reward's tolerance calls) skipped, and the members stepped in
-    :func:`set_step_threads` threads (benchmarks/bench_collect.py measures both).
+    ``mop_core.runtime.step_threads()`` threads (benchmarks/bench_collect.py measures both).
     """
 
     def __init__(self, task: str | WalkerTask, seeds: Sequence[int], episode_length: int = EPISODE_LENGTH):
@@ -300,7 +292,7 @@ class VectorWalkerEnv:
         actions = np.asarray(actions, dtype=np.float64)
         k = len(self.envs)
         observation, physics, features = np.empty((k, OBS_DIM)), np.empty((k, PHYSICS_DIM)), np.empty((k, 3))
-        shares = min(_STEP_THREADS, k)
+        shares = min(step_threads(), k)
         if shares == 1:
             self._step_members(range(k), actions, observation, physics, features)
         else:

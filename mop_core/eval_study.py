@@ -23,8 +23,8 @@ import numpy as np
 from mop_core.artifacts import read_curve
 from mop_core.catalogue import Catalogue, Reference
 from mop_core.config import ConfigError
-from mop_core.data import atomic_path, read_json, write_json
-from mop_core.evaluation import EvalConfig, episode_seeds, run_jobs
+from mop_core.evaluation import episode_seeds, run_jobs
+from mop_core.files import atomic_path, read_json, write_json
 from mop_core.plots import learning_curves, returns_bar_chart
 from mop_core.runs import cross_group, is_cross_group, teacher_group
 from mop_core.runtime import derive_seeds
@@ -36,6 +36,7 @@ from mop_core.statistics import (
     ratio_to_teacher,
     summarise_group,
 )
+from mop_core.study import EvalConfig
 from mop_core.tasks import get_task
 from mop_core.timings import per_second, write_timing
 

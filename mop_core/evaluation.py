@@ -10,42 +10,15 @@ differences between start states. Which jobs a study has is the catalogue's busi
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
 from mop_core.catalogue import Job
-from mop_core.config import require
 from mop_core.policies import load_policy
 from mop_core.rollout import episode_returns
 from mop_core.runtime import derive_seeds, parallel_map
-from mop_core.tasks import check_task_list
-
-GAUSSIAN_ACTIONS = ("mean", "sample")
-
-
-@dataclass(frozen=True)
-class EvalConfig:
-    """How much evaluation: ``episodes`` episodes per (policy, task), the same seeds for every policy."""
-
-    episodes: int = 30  # per policy and task: the CI unit of a policy trained once
-    rollout_envs: int = 30  # walkers stepped together in one process
-    workers: int = 2  # processes (one torch thread each)
-    bootstrap_reps: int = 2000  # replicates of the stratified bootstrap (IQM, probability of improvement)
-    gaussian_student_action: str = "mean"  # KL students act by their mean, or by a sample (the reference code)
-    transfer_tasks: tuple[str, ...] = ()  # tasks no policy trains on: the cross-task teachers are evaluated on
-    #   them too (thesis Table 6.3 with a task such as stand_still, 6.4.5)
-
-    def __post_init__(self) -> None:
-        require(self.episodes >= 2, "episodes", "an integer >= 2 (a confidence interval needs two units)",
-                self.episodes)
-        for name in ("rollout_envs", "workers", "bootstrap_reps"):
-            require(getattr(self, name) >= 1, name, "a positive integer", getattr(self, name))
-        require(self.gaussian_student_action in GAUSSIAN_ACTIONS, "gaussian_student_action",
-                f"one of {GAUSSIAN_ACTIONS}", self.gaussian_student_action)
-        if self.transfer_tasks:
-            check_task_list(self.transfer_tasks, "transfer_tasks")
+from mop_core.study import GAUSSIAN_ACTIONS, EvalConfig  # noqa: F401  (GAUSSIAN_ACTIONS: the eval stage's vocabulary)
 
 
 def episode_seeds(study_seed: int, config: EvalConfig) -> list[int]:

@@ -16,18 +16,9 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from mop_core.report import StudyResults
-from mop_core.runs import (
-    composed_variant,
-    ranking_variant,
-    sharing_variant,
-    single_variant,
-    structure_group,
-    student_group,
-    student_recipe,
-    teacher_group,
-    width_variant,
-)
+from mop_core.results import StudyResults
+from mop_core.runs import structure_group, student_group, student_recipe, teacher_group
+from mop_core.variants import Composed, Ranking, Sharing, SingleTask, Variant, Width
 
 Seeds = dict[int, float]  # training seed (or a group member's position) -> value
 
@@ -97,34 +88,34 @@ class Evidence:
         return self.normalise(task, run["mean"]), None if sd is None else sd * self.scale(task), run["n"]
 
     # ---- group names -----------------------------------------------------------------------------
-    def student(self, variant: str = "", loss: str = "mse", scope: str | None = None) -> str:
+    def student(self, variant: Variant | None = None, loss: str = "mse", scope: str | None = None) -> str:
         return student_group(student_recipe(loss, variant), scope or self.pairing)
 
     def teacher(self, task: str, actor: str = "deterministic") -> str:
         return teacher_group(self.level(task), actor)
 
-    def structure(self, variant: str = "", loss: str = "mse", scope: str | None = None) -> str:
+    def structure(self, variant: Variant | None = None, loss: str = "mse", scope: str | None = None) -> str:
         return structure_group(student_recipe(loss, variant), scope or self.pairing)
 
     @staticmethod
-    def width(width: int) -> str:
-        return width_variant(width)
+    def width(width: int) -> Variant:
+        return Width(width)
 
     @staticmethod
-    def ranking(loss: str) -> str:
-        return ranking_variant(loss)
+    def ranking(loss: str) -> Variant:
+        return Ranking(loss)
 
     @staticmethod
-    def sharing(kind: str, judge: str = "") -> str:
-        return sharing_variant(kind, judge)
+    def sharing(kind: str, judge: str = "") -> Variant:
+        return Sharing(kind, judge)
 
     @staticmethod
-    def single(task: str) -> str:
-        return single_variant(task)
+    def single(task: str) -> Variant:
+        return SingleTask(task)
 
     @staticmethod
-    def composed(dataset: str, width: int) -> str:
-        return composed_variant(dataset, width)
+    def composed(dataset: str, width: int) -> Variant:
+        return Composed(dataset, width)
 
     # ---- tau -------------------------------------------------------------------------------------
     def layers(self) -> list[int]:
@@ -149,11 +140,12 @@ class Evidence:
             out[position] = float(cell["mean"] if isinstance(cell, Mapping) else cell)
         return out or None
 
-    def probe_tau(self, variant: str = "", layer: int = 1, at: str = "final", loss: str = "mse") -> Seeds | None:
+    def probe_tau(self, variant: Variant | None = None, layer: int = 1, at: str = "final", loss: str = "mse"
+                  ) -> Seeds | None:
         """Each student's per-state tau-a at ``layer`` on the distill stage's probe states, ``final`` or
         ``at_init``."""
         runs = [r for r in self.results.students + self.results.variants
-                if r.key["loss"] == loss and r.key.get("variant", "") == variant and r.key["pairing"] == self.pairing]
+                if r.origin.loss == loss and r.origin.variant == variant and r.key["pairing"] == self.pairing]
         key = f"per_state_tau_a_layer{layer}"
         out = {r.seed: float(r.metrics["per_state_tau"][at][key]) for r in runs
                if key in r.metrics.get("per_state_tau", {}).get(at, {})}

@@ -21,6 +21,7 @@ from scipy.stats import beta, spearmanr
 
 from mop_core.evidence import Evidence
 from mop_core.statistics import TAU_BOUNDS, seed_interval
+from mop_core.variants import Variant
 from mop_core.verdicts import (
     ABOVE,
     BELOW,
@@ -34,6 +35,7 @@ from mop_core.verdicts import (
     versus_run,
 )
 
+MOP: Variant | None = None  # plain MOP's students: no variant
 RETURN_MARGIN = 10.0  # normalised points: "matches" = within 10% of the expert-random range
 TAU_MARGIN = 0.1  # Kendall tau: "a level similar to", "0.067" = within 0.1
 
@@ -68,7 +70,7 @@ def register(finding: Finding) -> Finding:
 
 
 # ---- measures -----------------------------------------------------------------------------------
-def student_vs_student(x: str, y: str, per_task: bool = True, tasks: Sequence[str] | None = None,
+def student_vs_student(x: Variant | None, y: Variant | None, per_task: bool = True, tasks: Sequence[str] | None = None,
                        losses: tuple[str, str] = ("mse", "mse")) -> Callable[[Evidence], list[Effect]]:
     """Student variants x - y (normalised return; of ``losses``), paired by seed: per task, or the mean
     over tasks."""
@@ -84,7 +86,7 @@ def student_vs_student(x: str, y: str, per_task: bool = True, tasks: Sequence[st
     return measure
 
 
-def student_vs_teacher(variant: str, teacher: Callable[[Evidence, str], str | None], loss: str = "mse",
+def student_vs_teacher(variant: Variant | None, teacher: Callable[[Evidence, str], str | None], loss: str = "mse",
                        tasks: Sequence[str] | None = None) -> Callable[[Evidence], list[Effect]]:
     """A student group against the one teacher run it is compared with (a fixed target), per task."""
     def measure(ev: Evidence) -> list[Effect]:
@@ -111,7 +113,7 @@ def teacher_vs_teacher(a: Callable[[Evidence, str], str], b: Callable[[Evidence,
     return measure
 
 
-def probe_tau_vs(x: str, y: str = "", layers: Sequence[int] | None = None, at_y: str = "final"
+def probe_tau_vs(x: Variant | None, y: Variant | None = None, layers: Sequence[int] | None = None, at_y: str = "final"
                  ) -> Callable[[Evidence], list[Effect]]:
     """Per layer: per-state tau-a on the probe states of students x - students y, paired by seed."""
     def measure(ev: Evidence) -> list[Effect]:
@@ -122,7 +124,7 @@ def probe_tau_vs(x: str, y: str = "", layers: Sequence[int] | None = None, at_y:
     return measure
 
 
-def sc_tau_vs(x: str, y: str, measure_key: str = "average_tau_a", scope: str | None = None
+def sc_tau_vs(x: Variant | None, y: Variant | None, measure_key: str = "average_tau_a", scope: str | None = None
               ) -> Callable[[Evidence], list[Effect]]:
     """Per layer: shared_computation tau of student groups x - y (structure variants), paired by seed."""
     def measure(ev: Evidence) -> list[Effect]:
@@ -134,7 +136,7 @@ def sc_tau_vs(x: str, y: str, measure_key: str = "average_tau_a", scope: str | N
     return measure
 
 
-def sc_tau_vs_thesis(variant: str, thesis: tuple[float, float]) -> Callable[[Evidence], list[Effect]]:
+def sc_tau_vs_thesis(variant: Variant | None, thesis: tuple[float, float]) -> Callable[[Evidence], list[Effect]]:
     """Per layer: average tau-a of a group (Table 6.2's measure) minus the thesis's Table 6.2 value."""
     def measure(ev: Evidence) -> list[Effect]:
         out = []
@@ -236,7 +238,7 @@ def online_vs_offline(ev: Evidence) -> list[Effect]:
     width = ev.settings.get("student_width")
     if width not in composed_widths(ev):
         return [not_run("online", "no online students at the distill width")]
-    return student_vs_student(ev.composed("online", width), "")(ev)
+    return student_vs_student(ev.composed("online", width), MOP)(ev)
 
 
 def shift_rank_correlation(ev: Evidence) -> list[Effect]:
@@ -290,7 +292,7 @@ def untrained_minus(ev: Evidence) -> list[Effect]:
     initialisation, paired (each student with itself)."""
     out = []
     for layer in ev.layers() or (1, 2):
-        out.append(paired(f"layer {layer}", ev.probe_tau("", layer), ev.probe_tau("", layer, "at_init"),
+        out.append(paired(f"layer {layer}", ev.probe_tau(MOP, layer), ev.probe_tau(MOP, layer, "at_init"),
                           "training seeds (each student with itself)"))
     return out
 
@@ -304,7 +306,7 @@ def substitute_sharing_tau(ev: Evidence) -> list[Effect]:
     for sub in substitutes:
         scope = f"{sub}-{ev.pairing}"
         for variant, name in ((ev.sharing("ds"), "DS"), (ev.sharing("oqs", "own"), "OQS")):
-            for cell in sc_tau_vs(variant, "mop", "per_state_tau_a", scope)(ev):
+            for cell in sc_tau_vs(variant, ev.sharing("mop"), "per_state_tau_a", scope)(ev):
                 out.append(Effect(f"{name} {cell.label}", cell.value, cell.low, cell.high, cell.n, cell.unit, cell.why))
     return out
 
@@ -332,7 +334,7 @@ def width_measure(kind: str) -> Callable[[Evidence], list[Effect]]:
         w = smallest_width(ev)
         if w is None:
             return [not_run("smallest width", "no width students (common_structure.widths)")]
-        inner = student_vs_student(ev.width(w), "") if kind == "return" else probe_tau_vs(ev.width(w))
+        inner = student_vs_student(ev.width(w), MOP) if kind == "return" else probe_tau_vs(ev.width(w))
         return labelled(f"width {w}", inner)(ev)
     return measure
 
@@ -343,8 +345,8 @@ def ranking_measure(loss: str, kind: str, layers: Sequence[int] | None = None,
         if loss not in ev.settings.get("ranking_losses", []):
             return [not_run(loss, f"needs {loss} students (common_structure.ranking_losses)")]
         if kind == "return":
-            return student_vs_student(ev.ranking(loss), "", per_task=per_task)(ev)
-        return probe_tau_vs(ev.ranking(loss), "", layers)(ev)
+            return student_vs_student(ev.ranking(loss), MOP, per_task=per_task)(ev)
+        return probe_tau_vs(ev.ranking(loss), MOP, layers)(ev)
     return measure
 
 
@@ -365,18 +367,18 @@ THESIS: list[Finding] = [
     Finding("mse_best_loss", "5.1.3, Figure 5.4",
             "Experiments in the Walker environment indicate that, somewhat surprisingly, the MSE loss performs best.",
             447, "MSE students - Q / KL students (mean over tasks, paired by seed)", ABOVE,
-            joined(labelled("vs Q", student_vs_student("", "", False, losses=("mse", "q"))),
-                   labelled("vs KL", student_vs_student("", "", False, losses=("mse", "kl"))))),
+            joined(labelled("vs Q", student_vs_student(MOP, MOP, False, losses=("mse", "q"))),
+                   labelled("vs KL", student_vs_student(MOP, MOP, False, losses=("mse", "kl"))))),
     Finding("mse_matches_teacher", "5.1.3, Figure 5.4",
             "MSE matches the teachers' performance, whereas the Q-value loss yields slightly lower values.", 451,
             "MSE students - their teacher run", equal_within(RETURN_MARGIN),
-            student_vs_teacher("", mop_teacher)),
+            student_vs_teacher(MOP, mop_teacher)),
     Finding("q_below_mse", "5.1.3, Figure 5.4",
             "MSE matches the teachers' performance, whereas the Q-value loss yields slightly lower values.", 451,
-            "Q students - MSE students (paired by seed)", BELOW, student_vs_student("", "", losses=("q", "mse"))),
+            "Q students - MSE students (paired by seed)", BELOW, student_vs_student(MOP, MOP, losses=("q", "mse"))),
     Finding("kl_fails_walk", "5.1.3, Figure 5.4",
             "It fails to match teacher performance, particularly in the walking task.", 453,
-            "KL students - their Gaussian teacher run", BELOW, student_vs_teacher("", gaussian_teacher, "kl"),
+            "KL students - their Gaussian teacher run", BELOW, student_vs_teacher(MOP, gaussian_teacher, "kl"),
             every_cell=False),
     Finding("medium_replay_walk_short", "5.2, Figure 5.5",
             "However, the approach falls slightly short on the walking task with the medium-replay dataset", 459,
@@ -469,21 +471,21 @@ THESIS: list[Finding] = [
     Finding("ds_student_best", "6.4.4, Figure 6.9a",
             "The student successfully replicates this behavior, achieving the best performance compared to both "
             "MOP and OQS across both tasks.", 915, "DS students - MOP / OQS students (per task, paired by seed)",
-            ABOVE, lambda ev: joined(labelled("vs MOP", student_vs_student(ev.sharing("ds"), "")),
+            ABOVE, lambda ev: joined(labelled("vs MOP", student_vs_student(ev.sharing("ds"), MOP)),
                                      labelled("vs OQS", student_vs_student(ev.sharing("ds"),
                                                                            ev.sharing("oqs", "own"))))(ev)),
     Finding("ds_raises_tau", "6.4.4, Table 6.2",
             "Additionally, shared computation improves significantly compared to MOP", 915,
             "DS students - MOP students (average tau-a, Table 6.2's measure)", ABOVE,
-            lambda ev: sc_tau_vs(ev.sharing("ds"), "")(ev)),
+            lambda ev: sc_tau_vs(ev.sharing("ds"), MOP)(ev)),
     Finding("oqs_highest_tau", "6.4.4, Table 6.2",
             "In terms of shared computation, as shown in Table [6.2,](#page-49-1) OQS performs the best.", 945,
             "OQS students - DS / MOP students (average tau-a)", ABOVE,
             lambda ev: joined(labelled("vs DS", sc_tau_vs(ev.sharing("oqs", "own"), ev.sharing("ds"))),
-                              labelled("vs MOP", sc_tau_vs(ev.sharing("oqs", "own"), "")))(ev)),
+                              labelled("vs MOP", sc_tau_vs(ev.sharing("oqs", "own"), MOP)))(ev)),
     Finding("table_6_2_mop", "Table 6.2 (Medium X Medium, MOP)", "Medium X Medium	MOP	0.067	0.15", 930,
             "MOP students' average tau-a - the thesis's value", equal_within(TAU_MARGIN),
-            sc_tau_vs_thesis("", (0.067, 0.15))),
+            sc_tau_vs_thesis(MOP, (0.067, 0.15))),
     Finding("table_6_2_ds", "Table 6.2 (Medium X Medium, DS)", "	DS	0.52	0.67", 931,
             "DS students' average tau-a - the thesis's value", equal_within(TAU_MARGIN),
             lambda ev: sc_tau_vs_thesis(ev.sharing("ds"), (0.52, 0.67))(ev)),
@@ -505,7 +507,7 @@ THESIS: list[Finding] = [
     Finding("oqs_student_worse", "6.5",
             "While it showed improved shared computation, the overall student performance decreased.", 973,
             "OQS students - MOP students (mean over tasks, paired by seed)", BELOW,
-            lambda ev: student_vs_student(ev.sharing("oqs", "own"), "", per_task=False)(ev)),
+            lambda ev: student_vs_student(ev.sharing("oqs", "own"), MOP, per_task=False)(ev)),
     Finding("ds_degrades_expert", "6.4.4, Figure 6.9b",
             "However, in the Expert X Expert setting (Figure [6.9b\\)](#page-49-0), DS significantly degrades "
             "teacher performance compared to MOP in both tasks.", 917, "DS teacher - MOP teacher (expert)", BELOW,
@@ -527,7 +529,7 @@ OWN: list[Finding] = [
     Finding("single_task_beats_mop_on_stand", "this run",
             "On stand, students distilled on stand alone beat the multi-task MOP students.", None,
             "single-task students - MOP students on stand (paired by seed)", ABOVE,
-            lambda ev: student_vs_student(ev.single("stand"), "", tasks=("stand",))(ev)
+            lambda ev: student_vs_student(ev.single("stand"), MOP, tasks=("stand",))(ev)
             if "stand" in ev.settings.get("single_task", []) else [not_run("stand", "no single-task students")]),
     Finding("online_within_null", "this run",
             "The online dataset (the teacher's own rollouts) shows no shift: its KL reads above the episode-split "

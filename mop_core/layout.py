@@ -12,8 +12,20 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from mop_core.artifacts import RunPaths
 from mop_core.data.hdf5 import LEVELS
+
+
+@dataclass(frozen=True)
+class RunPaths:
+    """Where a training run writes: the final checkpoint, its metrics, its curve, the resume file, and
+    its timing record (seconds and machine facts, :mod:`mop_core.timings`; None: not written)."""
+
+    checkpoint: Path
+    metrics: Path
+    curve: Path
+    resume: Path
+    timing: Path | None = None
+
 
 DATA = Path("data")
 RESULTS = Path("results")
@@ -75,15 +87,15 @@ def collect_paths(task: str) -> CollectPaths:
     )
 
 
-def run_paths(name: str, family: str, batch: str | None = None) -> RunPaths:
+def run_paths(name: str, family: str, entry: str | None = None) -> RunPaths:
     """A training run's final checkpoint (DVC output), metrics and curve (results/), resume file and timing.
 
-    ``batch``: the run is one of a group trained together in one process (teachers: every task and
+    ``entry``: the run is one of a group trained together in one process (teachers: every task and
     seed of a (level, actor type); students: every seed of a (loss, pairing)); its checkpoint, metrics
     and curve lie in a folder named after the group (the group's DVC outputs), and the resume file and
     timing record are the group's."""
-    sub = Path() if batch is None else Path(batch)
-    owner = name if batch is None else batch
+    sub = Path() if entry is None else Path(entry)
+    owner = name if entry is None else entry
     return RunPaths(checkpoint=DATA / family / sub / f"{name}.pt",
                     metrics=RESULTS / family / "metrics" / sub / f"{name}.json",
                     curve=RESULTS / family / "curves" / sub / f"{name}.tsv",
@@ -95,15 +107,15 @@ def timing_file(stage: str, name: str | None = None) -> Path:
     return TIMINGS / stage / f"{name}.json" if name is not None else TIMINGS / f"{stage}.json"
 
 
-def tau_curves_dir(name: str, batch: str) -> Path:
+def tau_curves_dir(name: str, entry: str) -> Path:
     """results/students/tau/<group>/<student>/: per_state_tau_<a|b>_layer<k>.tsv (step, tau), one curve each."""
-    return RESULTS / "students" / "tau" / batch / name
+    return RESULTS / "students" / "tau" / entry / name
 
 
-def student_inputs_file(batch: str) -> Path:
-    """The student_inputs stage's record of what the students of group ``batch`` read (its distill
+def student_inputs_file(entry: str) -> Path:
+    """The student_inputs stage's record of what the students of entry ``entry`` read (its distill
     entry's dependency)."""
-    return DATA / "student_inputs" / f"{batch}.json"
+    return DATA / "student_inputs" / f"{entry}.json"
 
 
 def stage_dir(stage: str) -> Path:

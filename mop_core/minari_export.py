@@ -40,7 +40,8 @@ from typing import Iterator
 import numpy as np
 
 from mop_core.config import ConfigError, InputFileError
-from mop_core.data import Dataset, read_dataset, read_json, read_relabel
+from mop_core.data.hdf5 import Dataset, read_dataset, read_relabel
+from mop_core.files import read_json
 from mop_core.layout import DATA, RESULTS, relabel_file
 from mop_core.tasks import REWARD_FEATURES
 

@@ -34,9 +34,14 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping, Sequence
 
 import yaml
+
+from mop_core.catalogue import build_catalogue
+from mop_core.compose import compose_config, composing_teachers
+from mop_core.runs import StudentRun
+from mop_core.study import shift_grid, study_config
 
 
 @dataclass(frozen=True)
@@ -81,10 +86,47 @@ def _evaluation_steps(schedule: Mapping[str, Any], episode_length: int, policies
     return policies * episode_length * (evaluations * schedule["eval_episodes"] + schedule["final_eval_episodes"])
 
 
+def _hours(runs: Sequence, seconds: Callable[[Any], float]) -> tuple[int, float]:
+    """(runs, hours): the runs' ``seconds`` each, one after another."""
+    return len(runs), sum(seconds(run) for run in runs) / 3600
+
+
+def _entry_seconds(runs: Sequence[StudentRun], params: Mapping[str, Any], study_tasks: int, rates: Rates) -> float:
+    """One distill entry (its students, one per seed, one group): its updates (a single-task student's: its
+    task's share of a multi-task update), every student's evaluations and a DAgger student's rollouts."""
+    first, length, schedule = runs[0], params["study"]["episode_length"], params["distill"]["schedule"]
+    tasks = len(first.tasks)
+    seconds = (schedule["steps"] * rates.student_seconds_per_update(first.loss, len(runs)) / (study_tasks / tasks)
+               + len(runs) * _evaluation_steps(schedule, length, tasks, final_is_last_point=True) / rates.rollout)
+    if first.correction == "dagger":  # its rounds' rollouts: every seed's student, per task
+        dagger = params["distill"].get("dagger", {})
+        seconds += dagger.get("rounds", 0) * dagger.get("episodes", 0) * len(runs) * tasks * length / rates.rollout
+    return seconds
+
+
+# the dvc.yaml stages of the students (the table: distill .. distill_single, train_shared_teachers, distill_sharing,
+# distill_substitute, compose, distill_composed .. distill_corrected)
+STUDENT_STAGES = ("distill", "distill_width", "distill_ranking", "distill_single", "distill_sharing",
+                  "distill_substitute", "distill_composed", "distill_size", "distill_corrected")
+
+
+def _compose_hours(params: Mapping[str, Any], rates: Rates) -> tuple[int, float]:
+    """(tasks x composed datasets, hours): each task's pools, held-out pools and reference episodes
+    (mop_core.compose.ComposeConfig.pool_sizes, what compose_task rolls out), its processes in waves."""
+    study = study_config(params)
+    grid = shift_grid(params, study)
+    config, teachers = compose_config(grid), composing_teachers(params)
+    episodes = (sum(config.pool_sizes().values()) + sum(config.pool_sizes(heldout=True).values())
+                + config.reference_episodes)
+    waves = math.ceil(len(teachers) / grid.workers)
+    return len(teachers) * len(config.datasets), waves * episodes * study.episode_length / rates.rollout / 3600
+
+
 def stage_hours(params: Mapping[str, Any], rates: Rates) -> dict[str, tuple[int, float]]:
-    """stage -> (runs, hours on one device)."""
-    study = params["study"]
-    tasks, levels, length = study["tasks"], study["levels"], study["episode_length"]
+    """stage -> (runs, hours on one device): the runs of the params' catalogue (mop_core.catalogue), the
+    eval stage's every job of it (transfer tasks included), compose's pools as compose_task rolls them."""
+    catalogue = build_catalogue(params)
+    tasks, length = catalogue.tasks, params["study"]["episode_length"]
     out: dict[str, tuple[int, float]] = {}
 
     collect = params["collect"]
@@ -97,97 +139,29 @@ def stage_hours(params: Mapping[str, Any], rates: Rates) -> dict[str, tuple[int,
     waves = math.ceil(len(tasks) / collect["parallel"]["workers"])
     out["collect"] = (len(tasks), waves * per_task / 3600)
 
-    teachers = params["train_teachers"]
-    t_sched = teachers["schedule"]
-    seconds = 0.0
-    runs = 0
-    for actor in teachers["actors"]:
-        count = len(tasks) * len(levels) * len(teachers["seeds"])
-        runs += count
-        seconds += count * (t_sched["steps"] / rates.pbrl[actor] + _evaluation_steps(t_sched, length) / rates.rollout)
-    out["train_teachers"] = (runs, seconds / 3600)
+    t_sched = params["train_teachers"]["schedule"]
+    out["train_teachers"] = _hours(catalogue.teachers, lambda run: (
+        t_sched["steps"] / rates.pbrl[run.actor] + _evaluation_steps(t_sched, length) / rates.rollout))
+    out["train_multitask"] = _hours(catalogue.multitask, lambda run: (
+        len(run.tasks) * t_sched["steps"] / rates.pbrl["deterministic"]
+        + _evaluation_steps(t_sched, length, len(run.tasks)) / rates.rollout))
+    students = {}
+    for stage in STUDENT_STAGES:
+        entries = list(catalogue.distill_stages().get(stage, {}).values())
+        students[stage] = (sum(map(len, entries)), sum(_entry_seconds(runs, params, len(tasks), rates)
+                                                       for runs in entries) / 3600)
+    out |= {stage: students[stage] for stage in STUDENT_STAGES[:4]}
+    out["train_shared_teachers"] = _hours(catalogue.shared_teachers, lambda run: (  # a deterministic teacher's cost
+        t_sched["steps"] / rates.pbrl["deterministic"] + _evaluation_steps(t_sched, length) / rates.rollout))
+    out |= {stage: students[stage] for stage in STUDENT_STAGES[4:6]}
+    out["compose"] = _compose_hours(params, rates)
+    out |= {stage: students[stage] for stage in STUDENT_STAGES[6:]}
 
-    multitask = params["train_multitask"]
-    count = len(multitask["levels"]) * len(multitask["seeds"])
-    per_run = (len(tasks) * t_sched["steps"] / rates.pbrl["deterministic"]
-               + _evaluation_steps(t_sched, length, len(tasks)) / rates.rollout)
-    out["train_multitask"] = (count, count * per_run / 3600)
-
-    distill = params["distill"]
-    d_sched = distill["schedule"]
-    seeds = len(distill["seeds"])
-    seconds = 0.0
-    for loss in distill["losses"]:
-        per_entry = (d_sched["steps"] * rates.student_seconds_per_update(loss, seeds)
-                     + seeds * _evaluation_steps(d_sched, length, len(tasks), final_is_last_point=True) / rates.rollout)
-        seconds += len(distill["pairings"]) * per_entry
-    students = len(distill["losses"]) * len(distill["pairings"]) * seeds
-    out["distill"] = (students, seconds / 3600)
-    structure = params.get("common_structure", {})
-    per_entry = (d_sched["steps"] * rates.student_seconds_per_update("mse", seeds)
-                 + seeds * _evaluation_steps(d_sched, length, len(tasks), final_is_last_point=True) / rates.rollout)
-    for stage, key in (("distill_width", "widths"), ("distill_ranking", "ranking_losses")):
-        entries = len(structure.get(key, []))
-        out[stage] = (entries * seeds, entries * per_entry / 3600)
-        students += entries * seeds
-    singles = len(structure.get("single_task", []))  # one task per student: its share of a multi-task update
-    out["distill_single"] = (singles * seeds, singles * (
-        d_sched["steps"] * rates.student_seconds_per_update("mse", seeds) / max(len(tasks), 1)
-        + seeds * _evaluation_steps(d_sched, length, 1, final_is_last_point=True) / rates.rollout) / 3600)
-
-    sharing = params.get("data_sharing", {})
-    sharing_levels, kinds = sharing.get("levels", []), sharing.get("teachers", [])
-    substitutes = len(sharing.get("substitutes", []))
-    # a substitute's set adds its own teacher, its DS teacher and its OQS teachers (m - 1 from other data), and
-    # each other task's OQS teacher from the substitute's data is the study set's from its base task's (reused)
-    shared_teachers = len(sharing_levels) * (
-        len(tasks) * ("ds" in kinds) + len(tasks) * (len(tasks) - 1) * ("oqs" in kinds)
-        + substitutes * (1 + ("ds" in kinds) + (len(tasks) - 1) * ("oqs" in kinds)))
-    per_teacher = (t_sched["steps"] / rates.pbrl["deterministic"] + _evaluation_steps(t_sched, length) / rates.rollout)
-    out["train_shared_teachers"] = (shared_teachers, shared_teachers * per_teacher / 3600)
-    entries = len(sharing_levels) * len(sharing.get("students", []))
-    out["distill_sharing"] = (entries * seeds, entries * per_entry / 3600)
-    students += entries * seeds
-    entries = substitutes * len(sharing_levels) * len(sharing.get("substitute_students", []))
-    out["distill_substitute"] = (entries * seeds, entries * per_entry / 3600)
-    students += entries * seeds
-
-    shift = params.get("state_shift", {})
-    datasets, episodes = shift.get("datasets", []), shift.get("episodes", 0)
-    pools = {"teacher": 0, "noise": 0, "random": 0}  # mop_core.compose.ComposeConfig.pool_sizes
-    for name in datasets:
-        composition = shift["compositions"][name]
-        teacher = min(episodes, max(1, round(composition["teacher_share"] * episodes)))
-        pools["teacher"] = max(pools["teacher"], teacher)
-        if teacher < episodes:
-            rest = composition.get("rest", "noise")
-            pools[rest] = max(pools[rest], episodes - teacher)
-    heldout = shift.get("heldout_episodes", 0)  # per dataset, its composition's held-out episodes (pools of their own)
-    composed = (sum(pools.values()) + shift.get("reference_episodes", 0) + len(datasets) * heldout) * length \
-        if datasets else 0
-    waves = math.ceil(len(tasks) / max(shift.get("workers", 1), 1))
-    out["compose"] = (len(tasks) * len(datasets), waves * composed / rates.rollout / 3600)
-    entries = len(datasets) * len(shift.get("widths", []))  # the plain width's rate: wide ones cost more
-    out["distill_composed"] = (entries * seeds, entries * per_entry / 3600)
-    entries = len(shift.get("data_percents", []))
-    out["distill_size"] = (entries * seeds, entries * per_entry / 3600)
-    corrections = shift.get("corrections", [])
-    entries = len(shift.get("correction_datasets", [])) * len(shift.get("correction_widths", []))
-    dagger = params["distill"].get("dagger", {})  # its rounds' rollouts: every seed's student, per task
-    dagger_steps = dagger.get("rounds", 0) * dagger.get("episodes", 0) * seeds * len(tasks) * length
-    out["distill_corrected"] = (len(corrections) * entries * seeds, entries * (
-        len(corrections) * per_entry + ("dagger" in corrections) * dagger_steps / rates.rollout) / 3600)
-
-    policies = (2 * len(tasks)  # behaviour medium and expert
-                + shared_teachers
-                + len(tasks) * len(levels) * len(teachers["actors"]) * len(teachers["seeds"])
-                + len(levels) * len(tasks) * (len(tasks) - 1)  # cross-task teachers
-                + count * len(tasks) + students * len(tasks) + singles * seeds
-                + len(tasks) * sum(out[s][0] for s in ("distill_composed", "distill_size", "distill_corrected")))
-    out["eval"] = (policies, policies * params["eval"]["episodes"] * length / rates.rollout / 3600)
-    shared = params["shared_computation"]
-    out["shared_computation"] = (students + singles * seeds, (students * len(tasks) + singles * seeds)
-                                 * shared["episodes"] * length / rates.rollout / 3600)
+    transfer = tuple(params["eval"].get("transfer_tasks") or ())
+    out["eval"] = _hours(catalogue.eval_jobs(transfer_tasks=transfer),
+                         lambda _: params["eval"]["episodes"] * length / rates.rollout)
+    out["shared_computation"] = _hours(catalogue.students, lambda run: (
+        len(run.tasks) * params["shared_computation"]["episodes"] * length / rates.rollout))
     return out
 
 

@@ -17,7 +17,7 @@ from mop_core.agents.td3 import actor_from_checkpoint
 from mop_core.artifacts import read_torch_file
 from mop_core.collect import BEHAVIOUR_KIND
 from mop_core.config import InputFileError
-from mop_core.distill.run import STUDENT_KIND, student_from_checkpoint
+from mop_core.distill.checkpoint import STUDENT_KIND, student_from_checkpoint
 from mop_core.nn import NumpyPolicy, numpy_policy
 from mop_core.teachers import MULTITASK_KIND, TEACHER_KIND, multitask_from_checkpoint, teacher_from_checkpoint
 

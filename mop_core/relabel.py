@@ -19,8 +19,8 @@ import numpy as np
 import torch
 
 from mop_core.config import require
-from mop_core.data import TransitionTensors, read_dataset, read_relabel, write_dataset, write_relabel
-from mop_core.data.hdf5 import Dataset, DatasetError
+from mop_core.data.buffer import TransitionTensors
+from mop_core.data.hdf5 import Dataset, DatasetError, read_dataset, read_relabel, write_dataset, write_relabel
 from mop_core.envs import physics_replay_rewards
 from mop_core.tasks import check_task_list, reward
 

@@ -14,57 +14,26 @@ stage's (each cell says its unit and n).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from mop_core.artifacts import read_curve
 from mop_core.catalogue import Catalogue
-from mop_core.data import LEVELS, read_json
+from mop_core.data.hdf5 import LEVELS
 from mop_core.distill.losses import LOSSES
+from mop_core.files import read_json
 from mop_core.layout import COLLECT_METRICS, RESULTS, dataset_summary_file, stage_dir
 from mop_core.plots import band_curves
+from mop_core.results import Run, StudyResults
 from mop_core.runs import (
     BEHAVIOUR_LEVELS,
     behaviour_group,
     multitask_group,
     structure_group,
     student_group,
-    student_recipe,
     teacher_group,
 )
 from mop_core.statistics import MIN_SEEDS_FOR_SEED_CI, confidence_interval
-
-
-@dataclass(frozen=True)
-class Run:
-    """One trained model of the study: what it is (``key``: task/level/actor/loss/pairing), its
-    training seed, its metrics record and learning-curve rows."""
-
-    key: Mapping[str, str]
-    seed: int
-    metrics: dict
-    curve: Sequence[Mapping[str, str]]
-
-
-@dataclass
-class StudyResults:
-    """Everything the report shows, as the stages wrote it. Empty/None: not part of this run."""
-
-    tasks: list[str]
-    levels: list[str]
-    settings: dict  # budgets shown in the header (profile values)
-    collect: dict | None = None  # collect metrics (behaviour snapshots)
-    datasets: dict[str, dict] = field(default_factory=dict)  # "<task>-<level>" -> dataset summary
-    teachers: list[Run] = field(default_factory=list)  # key: task, level, actor
-    multitask: list[Run] = field(default_factory=list)  # key: level
-    students: list[Run] = field(default_factory=list)  # plain MOP students; key: loss, pairing
-    variants: list[Run] = field(default_factory=list)  # common-structure students; key: loss, variant, pairing
-    substitutes: list[Run] = field(default_factory=list)  # a substituted task set's; key: + substitute
-    pairing_levels: dict[str, list[str]] = field(default_factory=dict)  # pairing -> level per task
-    evaluation: dict | None = None  # eval metrics (CIs per task and group, cross_task)
-    shared: dict | None = None  # shared_computation metrics
-    figures: dict[str, str] = field(default_factory=dict)  # name -> path relative to the report
 
 
 def fmt(value: float | None, digits: int = 1) -> str:
@@ -515,8 +484,7 @@ def shared_section(results: StudyResults) -> str:
     rows = []
     study_order = list(dict.fromkeys(
         [structure_group(r.key["loss"], r.key["pairing"]) for r in results.students]
-        + [structure_group(student_recipe(r.key["loss"], r.key["variant"]), r.key["pairing"])
-           for r in results.variants]))
+        + [r.origin.structure_group for r in results.variants]))
     ordered = sorted(shared["groups"], key=lambda g: study_order.index(g) if g in study_order else len(study_order))
     for group in ordered:  # the study's loss order (mse, q, kl), not the JSON file's sorted keys
         summary = shared["groups"][group]
@@ -654,7 +622,7 @@ def load_run(run, key: dict) -> Run | None:
     metrics = read_optional(run.paths.metrics)
     if metrics is None:
         return None
-    return Run(key, run.seed, metrics, read_curve(run.paths.curve) if run.paths.curve.is_file() else [])
+    return Run(key, run.seed, metrics, read_curve(run.paths.curve) if run.paths.curve.is_file() else [], run)
 
 
 def settings(params: Mapping[str, Any]) -> dict:
@@ -700,7 +668,7 @@ def load_results(catalogue: Catalogue, params: Mapping[str, Any]) -> StudyResult
     for s in catalogue.students:
         results.pairing_levels[s.pairing] = list(s.levels)
         kind = results.substitutes if s.substitute else results.variants if s.variant else results.students
-        key = {"loss": s.loss} | ({"variant": s.variant} if s.variant else {}) | {"pairing": s.pairing} | (
+        key = {"loss": s.loss} | ({"variant": s.variant.name} if s.variant else {}) | {"pairing": s.pairing} | (
             {"substitute": s.substitute} if s.substitute else {})
         run = load_run(s, key)
         kind += [run] if run else []

@@ -16,8 +16,9 @@ from pathlib import Path
 from typing import Sequence
 
 from mop_core.plots import interval_panels
-from mop_core.report import Run, StudyResults, eval_entry, fmt, fmt_ci, fmt_normalised, not_run, table
+from mop_core.report import eval_entry, fmt, fmt_ci, fmt_normalised, not_run, table
 from mop_core.report_structure import fmt_interval, seed_interval
+from mop_core.results import Run, StudyResults
 from mop_core.runs import (
     TeacherRun,
     no_sharing_group,
@@ -27,14 +28,16 @@ from mop_core.runs import (
     student_recipe,
 )
 from mop_core.tasks import data_tasks, substitute_tasks
+from mop_core.variants import Sharing, Variant
 
 # Thesis Table 6.2 (walk x stand students, tau-a per layer, one seed): the reference the measured
 # rows sit next to. Expert x Expert's OQS row has no approach label in the thesis's text; it is the
 # third row.
 THESIS_TABLE_6_2 = {"medium": {"MOP": (0.067, 0.15), "DS": (0.52, 0.67), "OQS": (0.68, 0.76)},
                     "expert": {"MOP": (0.16, 0.36), "DS": (0.44, 0.62), "OQS": (0.43, 0.72)}}
-STUDENT_LABELS = {"": "MOP", "ds": "DS", "oqs_own": "OQS (own critics)", "oqs_target": "OQS (target critic)"}
-SET_VARIANTS = {"": "", "mop": ""}  # a substituted set's MOP students are variant "mop" (the study's have none)
+STUDENT_LABELS: dict[Variant | None, str] = {  # None: the study's plain MOP students
+    None: "MOP", Sharing("ds"): "DS", Sharing("oqs", "own"): "OQS (own critics)",
+    Sharing("oqs", "target"): "OQS (target critic)"}
 
 
 @dataclass(frozen=True)
@@ -50,9 +53,10 @@ class TaskSet:
         """The students' pairing part of their group names (mop_core.runs.StudentRun.scope)."""
         return f"{self.substitute}-{level}" if self.substitute else level
 
-    def student_variant(self, variant: str) -> str:
-        """A STUDENT_LABELS variant as this set's students have it ("" -> "mop" in a substituted set)."""
-        return ("mop" if self.substitute else "") if variant == "" else variant
+    def student_variant(self, variant: Variant | None) -> Variant | None:
+        """A STUDENT_LABELS variant as this set's students have it (a substituted set's MOP students:
+        ``Sharing("mop")``)."""
+        return (Sharing("mop") if self.substitute else None) if variant is None else variant
 
     @property
     def title(self) -> str:
@@ -75,11 +79,11 @@ def set_runs(results: StudyResults, task_set: TaskSet) -> list[Run]:
     """The data-sharing (and a substituted set's MOP) students of one task set."""
     if task_set.substitute:
         return [r for r in results.substitutes if r.key["substitute"] == task_set.substitute]
-    return [r for r in results.variants if r.key["variant"] in STUDENT_LABELS]
+    return [r for r in results.variants if isinstance(r.origin.variant, Sharing)]
 
 
 def sharing_levels(results: StudyResults) -> list[str]:
-    return list(dict.fromkeys(r.key["pairing"] for r in results.variants if r.key["variant"] in STUDENT_LABELS))
+    return list(dict.fromkeys(r.key["pairing"] for r in results.variants if isinstance(r.origin.variant, Sharing)))
 
 
 def teacher_rows(results: StudyResults, level: str, task: str, task_set: TaskSet | None = None
@@ -206,8 +210,8 @@ def q_switch_lines(results: StudyResults, levels: Sequence[str], sets: Sequence[
     rows = []
     for task_set in sets or task_sets(results):
         for level in levels:
-            for variant in ("oqs_own", "oqs_target"):
-                runs = [r for r in set_runs(results, task_set) if r.key["variant"] == variant
+            for variant in (Sharing("oqs", "own"), Sharing("oqs", "target")):
+                runs = [r for r in set_runs(results, task_set) if r.origin.variant == variant
                         and r.key["pairing"] == level]
                 records = [r.metrics["q_switch"] for r in runs if "q_switch" in r.metrics]
                 if not records:

@@ -14,10 +14,12 @@ from pathlib import Path
 from typing import Sequence
 
 from mop_core.plots import interval_panels
-from mop_core.report import Run, StudyResults, eval_entry, fmt, fmt_ci, fmt_normalised, not_run, table
-from mop_core.runs import RANKING_PREFIX, WIDTH_PREFIX, student_group, student_recipe
+from mop_core.report import eval_entry, fmt, fmt_ci, fmt_normalised, not_run, table
+from mop_core.results import Run, StudyResults
+from mop_core.runs import student_group, student_recipe
 from mop_core.statistics import MIN_SEEDS_FOR_SEED_CI, TAU_BOUNDS
 from mop_core.statistics import seed_interval as interval_over_seeds
+from mop_core.variants import Ranking, Variant, Width
 
 TAU_VARIANT = "a"  # the thesis's formula (6.2.2); tau-b is in the shared computation section
 PROBE_STATES = {"offline": "offline dataset states", "visited": "states the student visited"}  # distill.probe_source
@@ -94,17 +96,17 @@ def comparison(results: StudyResults, rows: Sequence[tuple[object, str, Sequence
 def structure_section(results: StudyResults, figure_dir: Path, link_prefix: str) -> str:
     """Section 7a: the width sweep (6.3.1) and the ranking regularisers (6.3.2)."""
     out = ["## 7a. Common structure at the computational level (thesis 6.3, Figures 6.4 and 6.5)", ""]
-    variants = [r for r in results.variants if r.key["variant"].startswith((WIDTH_PREFIX, RANKING_PREFIX))]
+    variants = [r for r in results.variants if isinstance(r.origin.variant, (Width, Ranking))]
     if not variants:
         return "\n".join(out + [not_run("the common-structure students", "Set `common_structure.widths` or "
                                         "`common_structure.ranking_losses` and run `dvc repro`."), ""])
     pairing = results.settings.get("structure_pairing", "medium")
     plain = [r for r in results.students if r.key["loss"] == "mse" and r.key["pairing"] == pairing]
-    by_variant: dict[str, list[Run]] = {}
+    by_variant: dict[Variant, list[Run]] = {}
     for run in variants:
-        by_variant.setdefault(run.key["variant"], []).append(run)
+        by_variant.setdefault(run.origin.variant, []).append(run)
     plain_width = results.settings.get("student_width", "plain")
-    widths = sorted([(int(v[len(WIDTH_PREFIX):]), v) for v in by_variant if v.startswith(WIDTH_PREFIX)])
+    widths = sorted([(v.width, v) for v in by_variant if isinstance(v, Width)], key=lambda pair: pair[0])
     if widths:
         rows = [(w, student_recipe("mse", v), by_variant[v]) for w, v in widths]
         if plain and isinstance(plain_width, int):
@@ -112,12 +114,12 @@ def structure_section(results: StudyResults, figure_dir: Path, link_prefix: str)
         out += ["### Student width (thesis 6.3.1, Figure 6.4)", ""]
         out += comparison(results, rows, "hidden width", figure_dir / "width.png", f"{link_prefix}width.png",
                           "hidden width (every layer)", "MSE students by width", log_x=True)
-        out += [f"Every layer of the student {WIDTH_PREFIX}<width> wide; `mse` is plain MOP at "
+        out += [f"Every layer of the student w<width> wide; `mse` is plain MOP at "
                 f"`distill.student.hidden_sizes` (width {plain_width}). Same teachers, states and seeds.", ""]
-    ranking = [v for v in by_variant if v.startswith(RANKING_PREFIX)]
+    ranking = [v for v in by_variant if isinstance(v, Ranking)]
     if ranking:
         rows = ([("none", "mse", plain)] if plain else []) + [
-            (v[len(RANKING_PREFIX):], student_recipe("mse", v), by_variant[v]) for v in ranking]
+            (v.loss, student_recipe("mse", v), by_variant[v]) for v in ranking]
         settings = results.settings.get("ranking", {})
         out += ["### Ranking regularisation (thesis 6.3.2, Figure 6.5)", ""]
         out += comparison(results, rows, "ranking loss", figure_dir / "ranking.png", f"{link_prefix}ranking.png",

@@ -2,14 +2,14 @@
 
 - :class:`BehaviourRun`: a TD3 snapshot of the collect stage (medium, expert) per task;
 - :class:`TeacherRun`: a PBRL teacher per (task, level, actor type, seed); every task and seed of a
-  (level, actor type) trains in one train_teachers entry, as one vectorised group (its ``batch``).
+  (level, actor type) trains in one train_teachers entry, as one vectorised group (its ``entry``).
   A teacher on relabelled data (thesis 6.4) names its ``sources``: the tasks whose datasets, with
   its own task's rewards, it learns from (D_{j->i}): every task for data sharing (DS), one other
   task for an offline Q-switch candidate (OQS); these train in the train_shared_teachers entries;
 - :class:`MultitaskRun`: the naive multi-task PBRL baseline per (level, seed);
 - :class:`StudentRun`: a distilled student per (loss, pairing, seed), with the teachers it learns
   from (one per study task); every seed of a (loss, pairing) trains in one distill entry, as one
-  vectorised group (its ``batch``). A common-structure variant (thesis 6.3: a width, a ranking
+  vectorised group (its ``entry``). A common-structure variant (thesis 6.3: a width, a ranking
   regulariser) is a student with a ``variant``, trained in its own distill_width / distill_ranking
   entry; so are the single-task students (``single_<task>``: one task's teacher alone, the no-sharing
   reference of shared_computation; distill_single entries) and the data-sharing students (6.4: ``ds``,
@@ -23,14 +23,13 @@ group names are made here and nowhere else. Which runs a study has: mop_core.cat
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
-from mop_core.artifacts import RunPaths
 from mop_core.layout import (
     REFERENCE,
+    RunPaths,
     behaviour_checkpoint,
     composed_file,
     dataset_file,
@@ -39,8 +38,11 @@ from mop_core.layout import (
     run_paths,
     tau_curves_dir,
 )
-from mop_core.study import OFFLINE_DATA, SHIFT_CORRECTIONS
 from mop_core.tasks import data_tasks, substitute_base, substitute_tasks
+from mop_core.variants import Variant
+
+if TYPE_CHECKING:
+    from mop_core.distill.distiller import DistillConfig
 
 BEHAVIOUR_LEVELS = ("medium", "expert")  # the collect stage's snapshots
 
@@ -54,110 +56,36 @@ def teacher_group(level: str, actor: str) -> str:
     return f"teacher_{level}_{actor}"
 
 
-def teacher_batch(level: str, actor: str) -> str:
+def teacher_entry(level: str, actor: str) -> str:
     """The train_teachers entry (and file folder) of every task and seed of a (level, actor type):
     ``<level>-<actor>``, trained as one vectorised group."""
     return f"{level}-{actor}"
 
 
 SHARING_KINDS = ("ds", "oqs")  # teachers on relabelled data (thesis 6.4.2, 6.4.3)
-Q_SWITCH_JUDGES = ("own", "target")  # OQS: each candidate judged by its own critics, or by the target task's
 
 
-def sharing_teacher_batch(kind: str, level: str, actor: str) -> str:
+def sharing_teacher_entry(kind: str, level: str, actor: str) -> str:
     """The train_shared_teachers entry (and file folder) of the teachers of one sharing kind and level:
     ``ds-<level>-<actor>`` (one per task) or ``oqs-<level>-<actor>`` (one per task pair j != i)."""
     return f"{kind}-{level}-{actor}"
-
-
-def sharing_variant(kind: str, judge: str = "") -> str:
-    """The student variant of a sharing kind: ``ds``, or ``oqs_<judge>`` (thesis 6.4.3's rule, ``own``,
-    or the target task's critic judging every candidate, ``target``)."""
-    return f"{kind}_{judge}" if judge else kind
 
 
 def multitask_group(level: str) -> str:
     return f"multitask_{level}"
 
 
-WIDTH_PREFIX, RANKING_PREFIX = "w", "rank_"  # common-structure variants (thesis 6.3): mop_core.distill.variants
-SINGLE_PREFIX = "single_"  # students of one task alone: the no-sharing reference of shared_computation
-COMPOSED_PREFIX, SIZE_PREFIX = "on_", "data"  # state-shift variants (thesis 5.2): composed data, dataset size
-
-
-def width_variant(width: int) -> str:
-    """The variant of students whose every hidden layer is ``width`` wide (6.3.1)."""
-    return f"{WIDTH_PREFIX}{width}"
-
-
-def ranking_variant(loss: str) -> str:
-    """The variant of students trained with the ranking regulariser of ranking loss ``loss`` (6.3.2)."""
-    return f"{RANKING_PREFIX}{loss}"
-
-
-def single_variant(task: str) -> str:
-    """The variant of students distilled on ``task`` alone (its teacher, its dataset; one task id)."""
-    return f"{SINGLE_PREFIX}{task}"
-
-
-def single_task_of(variant: str) -> str | None:
-    """The task of a single-task variant (``single_<task>``), None for any other variant."""
-    return variant[len(SINGLE_PREFIX):] if variant.startswith(SINGLE_PREFIX) else None
-
-
-def composed_variant(dataset: str, width: int) -> str:
-    """The variant of students of hidden width ``width`` distilled on the composed dataset ``dataset``
-    (thesis 5.2.4: ``on_noise_w16``)."""
-    return f"{COMPOSED_PREFIX}{dataset}_{WIDTH_PREFIX}{width}"
-
-
-def composed_parts(variant: str) -> tuple[str, int] | None:
-    """(composed dataset, width) of a composed-data variant, None for any other variant."""
-    match = re.fullmatch(rf"{COMPOSED_PREFIX}(\w+?)_{WIDTH_PREFIX}([1-9][0-9]*)", variant)
-    return (match.group(1), int(match.group(2))) if match else None
-
-
-def correction_variant(correction: str, dataset: str, width: int) -> str:
-    """The variant of students of width ``width`` that correct for the state shift of ``dataset`` (a
-    composed dataset or ``offline``) by ``correction`` (reweight, dagger): ``reweight_random90_w256``."""
-    return f"{correction}_{dataset}_{WIDTH_PREFIX}{width}"
-
-
-def correction_parts(variant: str) -> tuple[str, str, int] | None:
-    """(correction, dataset, width) of a correction variant, None for any other variant."""
-    match = re.fullmatch(rf"({'|'.join(SHIFT_CORRECTIONS)})_(\w+?)_{WIDTH_PREFIX}([1-9][0-9]*)", variant)
-    return (match.group(1), match.group(2), int(match.group(3))) if match else None
-
-
-def shift_data(variant: str) -> tuple[str, int] | None:
-    """(dataset, width) of a composed-data or correction variant (dataset ``offline``: the collect
-    dataset), None for any other variant."""
-    parts = correction_parts(variant)
-    return parts[1:] if parts else composed_parts(variant)
-
-
-def size_variant(percent: int) -> str:
-    """The variant of students distilled on ``percent``% of each task's dataset (whole episodes)."""
-    return f"{SIZE_PREFIX}{percent}"
-
-
-def size_percent(variant: str) -> int | None:
-    """The dataset percentage of a size variant (``data10``), None for any other variant."""
-    match = re.fullmatch(rf"{SIZE_PREFIX}([1-9][0-9]?)", variant)
-    return int(match.group(1)) if match else None
-
-
-def student_recipe(loss: str, variant: str = "") -> str:
-    """What a student learned by: its loss, and its common-structure variant if any (``mse``,
-    ``mse-w16``, ``mse-rank_pairwise``: mop_core.distill.variants)."""
-    return f"{loss}-{variant}" if variant else loss
+def student_recipe(loss: str, variant: Variant | None = None) -> str:
+    """What a student learned by: its loss, and its variant if any (``mse``, ``mse-w16``,
+    ``mse-rank_pairwise``: mop_core.variants)."""
+    return f"{loss}-{variant.name}" if variant else loss
 
 
 def student_group(recipe: str, pairing: str) -> str:
     return f"student_{recipe}_{pairing}"
 
 
-def student_batch(recipe: str, pairing: str) -> str:
+def student_entry(recipe: str, pairing: str) -> str:
     """The distill entry (and file folder) of every seed of a (recipe, pairing): ``<recipe>-<pairing>``."""
     return f"{recipe}-{pairing}"
 
@@ -170,7 +98,7 @@ def structure_group(recipe: str, pairing: str) -> str:
 def no_sharing_group(pairing: str) -> str:
     """The shared_computation key of the no-sharing reference: each task's single-task students of
     one seed measured against each other's as if they were one student's two task ids."""
-    return structure_group(student_recipe("mse", SINGLE_PREFIX.rstrip("_")), pairing)
+    return structure_group("mse-single", pairing)
 
 
 def cross_group(level: str, teacher_task: str) -> str:
@@ -234,17 +162,17 @@ class TeacherRun:
         return f"teacher_{kind}_{self.level}_{self.actor}"
 
     @property
-    def batch(self) -> str:
+    def entry(self) -> str:
         """The entry that trains this teacher with every other task and seed of its (level, actor type[,
         sharing kind]), as one vectorised group: ``<level>-<actor>`` (``<kind>-<level>-<actor>``), the
         folder of its files."""
         if not self.sharing:
-            return teacher_batch(self.level, self.actor)
-        return sharing_teacher_batch(self.sharing, self.level, self.actor)
+            return teacher_entry(self.level, self.actor)
+        return sharing_teacher_entry(self.sharing, self.level, self.actor)
 
     @property
     def paths(self) -> RunPaths:
-        return run_paths(self.name, self.family, self.batch)
+        return run_paths(self.name, self.family, self.entry)
 
     @property
     def datasets(self) -> tuple[Path, ...]:
@@ -286,9 +214,8 @@ class StudentRun:
     pairing: str
     seed: int
     teachers: tuple[TeacherRun, ...]  # one per task, in task-id order
-    variant: str = ""  # a common-structure variant (w16, rank_pairwise, ds, oqs_own: mop_core.distill.variants)
+    variant: Variant | None = None  # its one change to plain MOP (mop_core.variants); None = plain MOP
     candidates: tuple[tuple[TeacherRun, ...], ...] = ()  # OQS: per task i, its teachers on D_{j->i} for every j
-    shared_states: bool = False  # states from the union of every task's dataset (DS, OQS), not each task's own
     substitute: str = ""  # the task standing in for its base task in this student's task set (data_sharing)
     family = "students"
 
@@ -309,17 +236,22 @@ class StudentRun:
     @property
     def single_task(self) -> bool:
         """Distilled on one task alone (the no-sharing reference), not a multi-task student."""
-        return single_task_of(self.variant) is not None
+        return bool(self.variant and self.variant.only_task)
+
+    @property
+    def shared_states(self) -> bool:
+        """States from the union of every task's dataset (DS, OQS), not each task's own."""
+        return bool(self.variant and self.variant.shared_states)
 
     @property
     def name(self) -> str:
         return f"{self.recipe}-{self.scope}-{self.seed}"
 
     @property
-    def batch(self) -> str:
+    def entry(self) -> str:
         """The distill entry that trains this student with every other seed of its (recipe, pairing),
         as one vectorised group: ``<recipe>-<pairing>``, the folder of its files."""
-        return student_batch(self.recipe, self.scope)
+        return student_entry(self.recipe, self.scope)
 
     @property
     def group(self) -> str:
@@ -331,12 +263,12 @@ class StudentRun:
 
     @property
     def paths(self) -> RunPaths:
-        return run_paths(self.name, self.family, self.batch)
+        return run_paths(self.name, self.family, self.entry)
 
     @property
     def tau_dir(self) -> Path:
-        """results/students/tau/<batch>/<name>/: one ``dvc plots`` curve per logged per-state tau."""
-        return tau_curves_dir(self.name, self.batch)
+        """results/students/tau/<entry>/<name>/: one ``dvc plots`` curve per logged per-state tau."""
+        return tau_curves_dir(self.name, self.entry)
 
     @property
     def tasks(self) -> tuple[str, ...]:
@@ -349,14 +281,12 @@ class StudentRun:
     @property
     def composed(self) -> str:
         """The composed dataset it learns from (thesis 5.2.4; mop_core.compose), "" for the offline data."""
-        parts = shift_data(self.variant)
-        return parts[0] if parts and parts[0] != OFFLINE_DATA else ""
+        return self.variant.composed if self.variant else ""
 
     @property
     def correction(self) -> str:
         """How it corrects for the state shift (reweight, dagger: thesis 5.3), "" when it does not."""
-        parts = correction_parts(self.variant)
-        return parts[0] if parts else ""
+        return self.variant.correction if self.variant else ""
 
     @property
     def heldout_datasets(self) -> tuple[Path, ...]:
@@ -394,6 +324,12 @@ class StudentRun:
         task's own dataset."""
         return self.datasets if self.shared_states else ()
 
+    def upstream_files(self) -> dict[str, tuple[Path, ...]]:
+        """Every file it reads, by the stage that writes it (checked present before any compute)."""
+        own = "compose" if self.composed else "collect"
+        files = {"train_teachers": tuple(t.paths.checkpoint for t in self.all_teachers), own: self.datasets}
+        return files | {"compose": files.get("compose", ()) + self.heldout_datasets + self.reference_datasets}
+
     @property
     def all_teachers(self) -> tuple[TeacherRun, ...]:
         """Every teacher it reads: one per task, and for OQS every candidate (each once, task order)."""
@@ -405,6 +341,10 @@ class StudentRun:
     @property
     def teacher_seed(self) -> int:
         return self.teachers[0].seed
+
+    def configure(self, config: "DistillConfig") -> "DistillConfig":
+        """The distillation config it trains with: ``config`` (plain MOP's, of its loss) with its variant's change."""
+        return self.variant.apply(config) if self.variant else config
 
 
 def own_teacher(task: str, data_task: str, level: str, seed: int) -> TeacherRun:

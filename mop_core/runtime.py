@@ -68,10 +68,26 @@ def keep_freed_memory() -> bool:
         return False
 
 
+_STEP_THREADS = [1]  # threads a VectorWalkerEnv (mop_core.envs) steps its members with
+
+
+def set_step_threads(threads: int) -> None:
+    """Step the members of every ``mop_core.envs.VectorWalkerEnv`` in ``threads`` threads (each a share
+    of the walkers; results do not depend on it). :func:`configure_compute` sets it to the process's
+    torch threads: a stage given 2 cores uses both for its rollouts too."""
+    if threads < 1:
+        raise ValueError(f"threads: expected a positive integer, got {threads!r}")
+    _STEP_THREADS[0] = threads
+
+
+def step_threads() -> int:
+    return _STEP_THREADS[0]
+
+
 def configure_compute(threads: int) -> None:
     """The process settings every compute stage, worker and benchmark starts with: ``threads``
     torch threads (:func:`set_threads`), as many threads stepping batched walkers
-    (:func:`mop_core.envs.set_step_threads`), freed memory kept for reuse (:func:`keep_freed_memory`),
+    (:func:`set_step_threads`), freed memory kept for reuse (:func:`keep_freed_memory`),
     and subnormal floats flushed to zero (``torch.set_flush_denormal``: x86 FTZ/DAZ).
 
     Subnormals (|x| < 1.2e-38 in float32) take a slow microcode path on x86 CPUs, tens of times a
@@ -80,8 +96,6 @@ def configure_compute(threads: int) -> None:
     issue-17 study: the pairwise-ranking group's step went from ~20 ms at the start to ~70 ms late
     in training, ApproxNDCG's doubled. Flushing them changes values only below float32's normal
     range; runs stay deterministic."""
-    from mop_core.envs import set_step_threads
-
     set_threads(threads)
     set_step_threads(threads)
     keep_freed_memory()

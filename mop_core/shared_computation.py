@@ -89,7 +89,7 @@ def visited_states(student_path: Path, task: str, seeds: Sequence[int], episode_
                    rollout_envs: int) -> tuple[np.ndarray, np.ndarray]:
     """``D_task^S``: the observations ``[episodes * T, obs]`` (float32) a student visits acting on
     ``task`` under its id, and the episodes' returns."""
-    from mop_core.distill.run import load_student
+    from mop_core.distill.checkpoint import load_student
 
     policy = load_student(student_path).policy(task)
     arrays = collect_episodes(policy, task, seeds, episode_length, rollout_envs)

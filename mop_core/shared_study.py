@@ -17,8 +17,8 @@ import torch
 
 from mop_core.artifacts import read_curve
 from mop_core.catalogue import Catalogue
-from mop_core.data import read_json, write_json
-from mop_core.distill.run import load_student
+from mop_core.distill.checkpoint import load_student
+from mop_core.files import read_json, write_json
 from mop_core.plots import metric_curves, sorted_activations
 from mop_core.runs import no_sharing_group
 from mop_core.runtime import configure_compute, derive_seeds

@@ -22,6 +22,7 @@ from mop_core.data.hdf5 import LEVELS
 from mop_core.nn import ACTOR_TYPES
 from mop_core.schedule import TrainSchedule
 from mop_core.tasks import check_task_list, get_task, substitute_base
+from mop_core.variants import OFFLINE_DATA, SHIFT_CORRECTIONS
 
 SECTIONS = ("study", "collect", "relabel", "train_teachers", "train_multitask", "distill", "common_structure",
             "data_sharing", "state_shift", "eval", "shared_computation")
@@ -136,8 +137,6 @@ SHARING_STUDENTS = {"ds": "ds", "oqs_own": "oqs", "oqs_target": "oqs"}  # studen
 # the students of a substituted task set: MOP's (its substitute's own teacher, on D_{base->substitute}, trains
 # with the OQS teachers) and the data-sharing ones
 SUBSTITUTE_STUDENTS = {"mop": "oqs"} | SHARING_STUDENTS
-SHIFT_CORRECTIONS = ("reweight", "dagger")  # state_shift.corrections: variants <correction>_<data>_w<width>
-OFFLINE_DATA = "offline"  # a correction student's data that is the pairing's collect dataset, not a composed one
 
 
 @dataclass(frozen=True)
@@ -297,8 +296,9 @@ def multitask_grid(params: Mapping[str, Any], study: StudyConfig) -> MultitaskGr
     return grid
 
 
-def pairing_levels(pairing: str, study: StudyConfig, key: str = "--pairing") -> tuple[str, ...]:
-    """The teacher level per study task of a pairing (``medium`` or ``expert+medium``)."""
+def parse_pairing(pairing: str, study: StudyConfig, key: str = "--pairing") -> tuple[str, ...]:
+    """The teacher level per study task that ``pairing`` names, however it is spelled (an alias such as
+    ``medium+medium`` included: :func:`pairing_levels` refuses it)."""
     levels = tuple(pairing.split("+"))
     if len(levels) == 1:
         levels = levels * len(study.tasks)
@@ -307,6 +307,16 @@ def pairing_levels(pairing: str, study: StudyConfig, key: str = "--pairing") -> 
                           f"got {pairing!r}")
     for level in levels:
         require(level in study.levels, key, f"levels among study.levels {list(study.levels)}", pairing)
+    return levels
+
+
+def pairing_levels(pairing: str, study: StudyConfig, key: str = "--pairing") -> tuple[str, ...]:
+    """The teacher level per study task of a pairing (``medium`` or ``expert+medium``). A pairing is
+    spelled one way only: the students' files and every cross-section reference are named by the
+    spelling, so one level for every task is written as that level (``medium``, not ``medium+medium``)."""
+    levels = parse_pairing(pairing, study, key)
+    require(not ("+" in pairing and len(set(levels)) == 1), key, f"{levels[0]!r} (a pairing of one level for "
+            "every study task is spelled as that level: the students' files are named by the spelling)", pairing)
     return levels
 
 
@@ -364,7 +374,7 @@ def distill_grid(params: Mapping[str, Any], study: StudyConfig, losses: Mapping[
     for loss in grid["losses"]:
         require(loss in losses, "distill.losses", f"entries among {tuple(losses)}", grid["losses"])
     for pairing in grid["pairings"]:
-        pairing_levels(str(pairing), study, "distill.pairings")
+        parse_pairing(str(pairing), study, "distill.pairings")
     for seed in grid["seeds"]:
         require(isinstance(seed, int) and not isinstance(seed, bool) and seed >= 0, "distill.seeds",
                 "non-negative integers", grid["seeds"])
@@ -372,10 +382,12 @@ def distill_grid(params: Mapping[str, Any], study: StudyConfig, losses: Mapping[
         require_unique(grid[key], f"distill.{key}")
     same = {}
     for pairing in grid["pairings"]:  # 'medium' and 'medium+medium' name the same students
-        levels = pairing_levels(str(pairing), study, "distill.pairings")
+        levels = parse_pairing(str(pairing), study, "distill.pairings")
         require(levels not in same, "distill.pairings", f"distinct pairings ({same.get(levels)!r} and "
                 f"{pairing!r} both pair the tasks with {'+'.join(levels)})", grid["pairings"])
         same[levels] = pairing
+    for pairing in grid["pairings"]:  # the one spelling of each (after the repeats, which name both)
+        pairing_levels(str(pairing), study, "distill.pairings")
     teachers = section(params, "train_teachers")  # typed by teacher_grid; read raw so each error names its key
     require(isinstance(grid["teacher_seed"], int) and not isinstance(grid["teacher_seed"], bool),
             "distill.teacher_seed", "an integer", grid["teacher_seed"])
@@ -389,3 +401,29 @@ def distill_grid(params: Mapping[str, Any], study: StudyConfig, losses: Mapping[
     schedule = from_mapping(TrainSchedule, grid["schedule"] or {}, "distill.schedule")
     return DistillGrid(tuple(grid["losses"]), tuple(str(p) for p in grid["pairings"]), tuple(grid["seeds"]),
                        grid["teacher_seed"], threads, schedule)
+
+
+GAUSSIAN_ACTIONS = ("mean", "sample")
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """How much evaluation: ``episodes`` episodes per (policy, task), the same seeds for every policy."""
+
+    episodes: int = 30  # per policy and task: the CI unit of a policy trained once
+    rollout_envs: int = 30  # walkers stepped together in one process
+    workers: int = 2  # processes (one torch thread each)
+    bootstrap_reps: int = 2000  # replicates of the stratified bootstrap (IQM, probability of improvement)
+    gaussian_student_action: str = "mean"  # KL students act by their mean, or by a sample (the reference code)
+    transfer_tasks: tuple[str, ...] = ()  # tasks no policy trains on: the cross-task teachers are evaluated on
+    #   them too (thesis Table 6.3 with a task such as stand_still, 6.4.5)
+
+    def __post_init__(self) -> None:
+        require(self.episodes >= 2, "episodes", "an integer >= 2 (a confidence interval needs two units)",
+                self.episodes)
+        for name in ("rollout_envs", "workers", "bootstrap_reps"):
+            require(getattr(self, name) >= 1, name, "a positive integer", getattr(self, name))
+        require(self.gaussian_student_action in GAUSSIAN_ACTIONS, "gaussian_student_action",
+                f"one of {GAUSSIAN_ACTIONS}", self.gaussian_student_action)
+        if self.transfer_tasks:
+            check_task_list(self.transfer_tasks, "transfer_tasks")

@@ -21,15 +21,17 @@ from mop_core.agents.pbrl import PBRLConfig, make_actor
 from mop_core.agents.pbrl_group import PBRLGroup, stack_batches
 from mop_core.agents.pbrl_multitask import MultiTaskPBRL
 from mop_core.artifacts import load_checkpoint, state_sha256
-from mop_core.config import InputFileError, from_mapping, require, to_dict
-from mop_core.data import TransitionTensors, read_dataset, read_relabel
+from mop_core.config import ConfigError, InputFileError, from_mapping, require, to_dict
+from mop_core.data.buffer import TransitionTensors
+from mop_core.data.hdf5 import read_dataset, read_json, read_relabel
 from mop_core.envs import ACT_DIM, OBS_DIM
 from mop_core.nn import EnsembleCritic, numpy_policy
 from mop_core.rollout import episode_returns, trajectory_returns
+from mop_core.runs import TeacherRun, shared_teacher_runs, sharing_teacher_entry, teacher_entry
 from mop_core.runtime import derive_seeds
 from mop_core.schedule import TrainSchedule
 from mop_core.step_metrics import run_key, split_runs
-from mop_core.study import StudyConfig, teacher_grid
+from mop_core.study import StudyConfig, section, sharing_grid, study_config, teacher_grid
 from mop_core.tasks import check_task_list
 from mop_core.timings import per_second, write_timing
 from mop_core.training import (
@@ -141,6 +143,13 @@ class TeacherJob:
     @property
     def sources(self) -> tuple[DataSource, ...]:
         return (self.source, *self.extra_sources)
+
+    @classmethod
+    def of(cls, run: TeacherRun) -> TeacherJob:
+        """The job of a catalogue teacher run: D_{j->task} for each of its data tasks j (its own first)."""
+        sources = [DataSource(dataset, relabel, run.task, source, run.level)
+                   for dataset, relabel, source in zip(run.datasets, run.relabels, run.data_tasks)]
+        return cls(run.task, sources[0], run.seed, run.paths, tuple(sources[1:]))
 
 
 class _GroupLearner:
@@ -388,3 +397,55 @@ def multitask_from_checkpoint(payload: dict) -> MultiTaskPolicy:
     actor.load_state_dict(payload["actor"])
     return MultiTaskPolicy(list(payload["tasks"]), payload["level"], payload["seed"],
                            actor.eval().requires_grad_(False))
+
+
+# ---- the teacher stages' runs ------------------------------------------------------------------------
+def teacher_entries(params: Mapping[str, Any], sharing: bool = False) -> dict[str, list[TeacherRun]]:
+    """train_teachers entry (``<level>-<actor>``: every study task and train_teachers seed) -> the teachers
+    it trains as one group; ``sharing``: the train_shared_teachers entries (``<kind>-<level>-deterministic``,
+    seed distill.teacher_seed: mop_core.runs.shared_teacher_runs). The catalogue's ``teachers`` and
+    ``shared_teachers`` (mop_core.catalogue, tested equal), from the study, train_teachers and data_sharing
+    sections alone: a teacher stage neither reads the student sections nor depends on the catalogue's code."""
+    study = study_config(params)
+    if sharing:
+        grid = sharing_grid(params, study)
+        seed = section(params, "distill")["teacher_seed"]
+        runs = [run for level in grid.levels
+                for run in shared_teacher_runs(study.tasks, level, grid.teachers, seed, grid.substitutes)]
+    else:
+        teachers = teacher_grid(params)
+        runs = [TeacherRun(task, level, actor, seed) for task in study.tasks for level in study.levels
+                for actor in teachers.actors for seed in teachers.seeds]
+    entries: dict[str, list[TeacherRun]] = {}
+    for run in runs:
+        entries.setdefault(run.entry, []).append(run)
+    return entries
+
+
+def entry_runs(params: Mapping[str, Any], level: str, actor: str, sharing: str | None = None,
+               tasks: Sequence[str] | None = None, seeds: Sequence[int] | None = None) -> list[TeacherRun]:
+    """The teachers of one entry (:func:`teacher_entries`: of ``level`` and ``actor``, and of the sharing
+    kind ``sharing`` if set) among ``tasks`` and ``seeds`` (None: all of the entry's), in the entry's order:
+    a subset retrains alone (a group of one: one teacher). An entry, task or seed the study does not
+    have is refused, naming its command-line flag."""
+    entries = teacher_entries(params, bool(sharing))
+    entry = sharing_teacher_entry(sharing, level, actor) if sharing else teacher_entry(level, actor)
+    if entry not in entries:
+        flags = "--level/--sharing/--actor" if sharing else "--level/--actor"
+        raise ConfigError(f"{flags}: expected an entry of this study, one of {list(entries)}, got {entry!r}")
+    runs = entries[entry]
+    for flag, asked, known in (("--tasks", tasks, [r.task for r in runs]), ("--seeds", seeds, [r.seed for r in runs])):
+        for value in asked or ():
+            require(value in known, flag, f"a subset of the {flag[2:]} of entry {entry}, {list(dict.fromkeys(known))}",
+                    value)
+    return [run for run in runs if (tasks is None or run.task in tasks) and (seeds is None or run.seed in seeds)]
+
+
+def group_lines(runs: Sequence[TeacherRun], records: Sequence[Mapping]) -> list[str]:
+    """What a trained group prints: each teacher's final return, then the group's seconds and update rate
+    (its timing record)."""
+    timing = read_json(runs[0].paths.timing)
+    return [f"{run.name}: return {m['return_mean']:.1f} +- {m['return_std']:.1f} (dataset "
+            f"{m['dataset_return_mean']:.1f}, ratio {m['return_ratio']:.2f})" for run, m in zip(runs, records)] + [
+        f"{runs[0].entry}: {len(runs)} teachers in {timing['seconds']:.0f} s, {timing['steps_per_second']:.0f} group "
+        "updates/s"]

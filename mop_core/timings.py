@@ -18,7 +18,7 @@ from typing import Any
 import torch
 
 from mop_core.artifacts import package_versions
-from mop_core.data.hdf5 import write_json
+from mop_core.files import write_json
 
 PIPELINE_ORDER = ("collect", "relabel", "teachers", "multitask", "students", "eval", "shared_computation")
 

@@ -20,8 +20,9 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from mop_core.artifacts import RunPaths, load_checkpoint, save_checkpoint, write_curve
-from mop_core.data.hdf5 import write_json
+from mop_core.artifacts import load_checkpoint, save_checkpoint, write_curve
+from mop_core.files import write_json
+from mop_core.layout import RunPaths
 from mop_core.runtime import TrainingDivergedError
 from mop_core.schedule import TrainSchedule
 from mop_core.step_metrics import StepMetrics

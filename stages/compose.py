@@ -18,16 +18,14 @@ results/timings/compose.json.
 from __future__ import annotations
 
 import time
-from functools import partial
 
 from common import load_params, require_inputs, run_stage
 
-from mop_core.compose import compose_config, compose_teacher_data
+from mop_core.compose import compose_config, compose_jobs, compose_teacher_data, composing_teachers, summary_lines
 from mop_core.data import write_json
 from mop_core.layout import RESULTS, composed_file, timing_file
-from mop_core.runs import TeacherRun
 from mop_core.runtime import parallel_map, progress_enabled
-from mop_core.study import pairing_levels, shift_grid, study_config
+from mop_core.study import shift_grid, study_config
 from mop_core.timings import write_timing
 
 COMPOSE_METRICS = RESULTS / "compose" / "metrics.json"
@@ -38,26 +36,18 @@ def main() -> None:
     study = study_config(params)
     grid = shift_grid(params, study)
     config = compose_config(grid)
-    teacher_seed = params["distill"]["teacher_seed"]
     started = time.perf_counter()
-    jobs = []
-    if grid.datasets:
-        levels = pairing_levels(grid.pairing, study, "state_shift.pairing")
-        teachers = [TeacherRun(task, level, "deterministic", teacher_seed) for task, level in zip(study.tasks, levels)]
-        require_inputs([t.paths.checkpoint for t in teachers], "train_teachers")
-        jobs = [(t.paths.checkpoint, t.task, t.level, config, study.seed, study.episode_length,
-                 partial(composed_file, t.task, t.level)) for t in teachers]
+    teachers = composing_teachers(params)
+    require_inputs([t.paths.checkpoint for t in teachers], "train_teachers")
+    jobs = compose_jobs(teachers, config, study.seed, study.episode_length)
     summaries = parallel_map(compose_teacher_data, jobs, grid.workers, "compose", progress_enabled(study.progress))
-    metrics = {f"{job[1]}-{job[2]}": summary for job, summary in zip(jobs, summaries)}
+    metrics = {f"{t.task}-{t.level}": summary for t, summary in zip(teachers, summaries)}
     write_json(COMPOSE_METRICS, metrics)
     write_timing(timing_file("compose"), time.perf_counter() - started, "cpu", workers=grid.workers,
                  tasks={key: summary["seconds"] for key, summary in metrics.items()})
-    for key, summary in metrics.items():
-        rows = ", ".join(f"{name} {d['return_mean']:.0f}" for name, d in summary["datasets"].items())
-        print(f"compose {key}: episode returns {rows} ({summary['seconds']:.0f} s)")
+    print("\n".join(summary_lines(metrics)) if jobs else "compose: state_shift.datasets is empty, nothing composed")
     if not jobs:  # the stage's output folder exists even when empty
         composed_file("-", "-", "-").parent.mkdir(parents=True, exist_ok=True)
-        print("compose: state_shift.datasets is empty, nothing composed")
 
 
 if __name__ == "__main__":

@@ -29,10 +29,9 @@ from mop_core.eval_study import (
     write_eval_outputs,
     write_eval_timing,
 )
-from mop_core.evaluation import EvalConfig
 from mop_core.layout import COLLECT_METRICS, stage_dir, timing_file
 from mop_core.runtime import progress_enabled
-from mop_core.study import study_config, typed_section
+from mop_core.study import EvalConfig, study_config, typed_section
 from mop_core.tasks import substitute_base
 
 

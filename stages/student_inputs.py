@@ -25,11 +25,11 @@ def main() -> None:
     files = {d for run in students for d in run.input_datasets}
     require_inputs(sorted(d for d in files if d.parent.name != "composed"), "collect")
     require_inputs(sorted(d for d in files if d.parent.name == "composed"), "compose")
-    batches = catalogue.student_batches()
-    for batch, runs in batches.items():
-        write_json(student_inputs_file(batch), student_inputs(runs))
+    entries = catalogue.student_entries()
+    for entry, runs in entries.items():
+        write_json(student_inputs_file(entry), student_inputs(runs))
     print(f"student_inputs: recorded the teachers and datasets of {len(catalogue.students)} students "
-          f"and {len(catalogue.shift_students)} state-shift students in {len(batches)} distill entries")
+          f"and {len(catalogue.shift_students)} state-shift students in {len(entries)} distill entries")
 
 
 if __name__ == "__main__":

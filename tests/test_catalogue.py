@@ -30,6 +30,7 @@ from mop_core.runs import (
     structure_group,
 )
 from mop_core.runtime import derive_seeds
+from mop_core.variants import Ranking, Sharing, SingleTask
 
 TASKS = ("stand", "walk")
 
@@ -93,11 +94,11 @@ def test_run_names_groups_and_files(catalogue):
     assert multitask.reference_group() == "teacher_medium_deterministic"
     student = catalogue.students[2]
     assert student.group == "student_kl_medium" and structure_group("kl", "medium") == "kl_medium"
-    assert student.paths.checkpoint == Path("data/students/kl-medium/kl-medium-0.pt") and student.batch == "kl-medium"
+    assert student.paths.checkpoint == Path("data/students/kl-medium/kl-medium-0.pt") and student.entry == "kl-medium"
     assert student.paths.resume == Path("data/resume/students-kl-medium.pt")  # the group's, shared by its seeds
     assert student.tasks == TASKS and student.levels == ("medium", "medium") and student.teacher_seed == 0
     variant = catalogue.students[4]  # a common-structure variant: the plain MSE student's teachers, its own files
-    assert variant.variant == "rank_pairwise" and variant.recipe == "mse-rank_pairwise"
+    assert variant.variant == Ranking("pairwise") and variant.recipe == "mse-rank_pairwise"
     assert variant.group == "student_mse-rank_pairwise_medium" and variant.structure_group == "mse-rank_pairwise_medium"
     assert variant.paths.checkpoint == Path("data/students/mse-rank_pairwise-medium/mse-rank_pairwise-medium-0.pt")
     assert variant.teachers == catalogue.students[0].teachers
@@ -108,10 +109,10 @@ def test_run_names_groups_and_files(catalogue):
 
 def test_kl_students_learn_from_gaussian_teachers_mse_and_q_from_deterministic_ones(catalogue):
     for student in catalogue.students:
-        if student.variant == "ds" or student.substitute:  # data sharing: the teachers on U_j D_{j->i}
+        if student.variant == Sharing("ds") or student.substitute:  # data sharing: the teachers on U_j D_{j->i}
             continue
         actor = "gaussian" if student.loss == "kl" else "deterministic"
-        tasks = TASKS if not student.single_task else (student.variant.removeprefix("single_"),)
+        tasks = TASKS if not student.single_task else (student.variant.task,)
         assert student.teachers == tuple(TeacherRun(task, "medium", actor, 0) for task in tasks)
         assert set(student.teachers) <= set(catalogue.teachers)  # every teacher a student needs is trained
 
@@ -238,11 +239,11 @@ def test_data_sharing_runs_their_teachers_files_and_eval_jobs(catalogue):
                                        "stand-from-stand+walk-medium-deterministic-0.pt")
     assert oqs_stand.sharing == "oqs" and oqs_stand.group == "teacher_from_walk_medium_deterministic"
     assert oqs_stand.datasets == (Path("data/datasets/walk-medium.hdf5"),)
-    assert oqs_stand.batch == "oqs-medium-deterministic"
-    assert set(catalogue.shared_teacher_batches()) == {"ds-medium-deterministic", "oqs-medium-deterministic"}
+    assert oqs_stand.entry == "oqs-medium-deterministic"
+    assert set(catalogue.shared_teacher_entries()) == {"ds-medium-deterministic", "oqs-medium-deterministic"}
     plain = catalogue.teachers[0]
     assert plain.sharing == "" and plain.datasets == (Path("data/datasets/stand-medium.hdf5"),)  # MOP's: unchanged
-    students = {s.variant: s for s in catalogue.sharing_students()}
+    students = {s.variant.name: s for s in catalogue.sharing_students()}
     assert set(students) == {"ds", "oqs_own", "oqs_target"}
     assert students["ds"].teachers == catalogue.shared_teachers[:2] and not students["ds"].candidates
     own = students["oqs_own"]
@@ -251,7 +252,7 @@ def test_data_sharing_runs_their_teachers_files_and_eval_jobs(catalogue):
         ["stand-medium-deterministic-0", "stand-from-walk-medium-deterministic-0"],
         ["walk-from-stand-medium-deterministic-0", "walk-medium-deterministic-0"]]
     assert len(own.all_teachers) == 4 and own.state_datasets == own.datasets == ds.datasets
-    assert own.group == "student_mse-oqs_own_medium" and own.batch == "mse-oqs_own-medium"
+    assert own.group == "student_mse-oqs_own_medium" and own.entry == "mse-oqs_own-medium"
     jobs = [(j.group, j.eval_task) for j in catalogue.eval_jobs() if "_ds_" in j.group or "_from_" in j.group]
     assert jobs == [("teacher_ds_medium_deterministic", "stand"), ("teacher_from_walk_medium_deterministic", "stand"),
                     ("teacher_ds_medium_deterministic", "walk"), ("teacher_from_stand_medium_deterministic", "walk"),
@@ -266,13 +267,13 @@ def test_a_substitute_runs_mop_ds_and_oqs_on_its_task_set_from_its_base_tasks_da
     """data_sharing.substitutes [stand_still]: the set {stand_still, walk} where stand_still learns from
     stand's datasets relabelled (D_{stand->stand_still}); walk's teachers are the study set's."""
     own, ds, from_walk = catalogue.shared_teachers[4:]
-    assert (own.task, own.data_tasks, own.batch) == ("stand_still", ("stand",), "oqs-medium-deterministic")
+    assert (own.task, own.data_tasks, own.entry) == ("stand_still", ("stand",), "oqs-medium-deterministic")
     assert own.datasets == (Path("data/datasets/stand-medium.hdf5"),)
     assert own.relabels == (Path("data/relabelled/stand-medium.hdf5"),)  # its stand_still column
-    assert (ds.data_tasks, ds.batch) == (("stand", "walk"), "ds-medium-deterministic")
+    assert (ds.data_tasks, ds.entry) == (("stand", "walk"), "ds-medium-deterministic")
     assert (from_walk.data_tasks, from_walk.group) == (("walk",), "teacher_from_walk_medium_deterministic")
     mop, oqs = catalogue.substitute_students()
-    assert (mop.name, mop.batch, mop.group) == ("mse-mop-stand_still-medium-0", "mse-mop-stand_still-medium",
+    assert (mop.name, mop.entry, mop.group) == ("mse-mop-stand_still-medium-0", "mse-mop-stand_still-medium",
                                                 "student_mse-mop_stand_still-medium")
     assert mop.tasks == ("stand_still", "walk") and mop.data_tasks == ("stand", "walk")
     assert mop.teachers == (own, TeacherRun("walk", "medium", "deterministic", 0)) and not mop.shared_states
@@ -357,9 +358,9 @@ def test_common_structure_variants_need_deterministic_teachers_and_a_distill_pai
 def test_single_task_students_learn_from_their_task_alone_and_form_the_no_sharing_pairs(catalogue):
     stand, walk = [run for run in catalogue.students if run.single_task]
     assert stand == StudentRun("mse", "medium", 0, (TeacherRun("stand", "medium", "deterministic", 0),),
-                               "single_stand")
+                               SingleTask("stand"))
     assert (stand.tasks, walk.tasks) == (("stand",), ("walk",))
-    assert (walk.batch, walk.group, walk.structure_group) == (
+    assert (walk.entry, walk.group, walk.structure_group) == (
         "mse-single_walk-medium", "student_mse-single_walk_medium", "mse-single_walk_medium")
     assert walk.datasets == (Path("data/datasets/walk-medium.hdf5"),)
     assert catalogue.single_task_students() == {"medium": {0: [stand, walk]}}
@@ -396,7 +397,7 @@ def catalogue_seeds(catalogue) -> list[int]:
 
 def test_student_inputs_record_the_teachers_and_datasets_by_content(catalogue, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # the run paths are relative to the repository root
-    batch = catalogue.student_batches()["mse-medium"]
+    batch = catalogue.student_entries()["mse-medium"]
     student = batch[0]
     assert [run.name for run in batch] == [f"mse-medium-{seed}" for seed in catalogue_seeds(catalogue)]
     for i, (teacher, dataset) in enumerate(zip(student.teachers, student.datasets)):

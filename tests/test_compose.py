@@ -1,23 +1,33 @@
 """mop_core/compose.py: composed datasets (thesis 5.2.4) from a policy's rollouts, by whole episodes,
-with shared episode pools; and the dataset-share subset of mop_core/distill/states.py."""
+with shared episode pools, and the teachers that compose them; and the dataset-share subset of
+mop_core/distill/states.py."""
 
 from __future__ import annotations
+
+import copy
 
 import numpy as np
 import pytest
 
+from mop_core.catalogue import build_catalogue
 from mop_core.compose import (
     REFERENCE,
     THESIS_COMPOSITIONS,
     ComposeConfig,
     Composition,
+    compose_config,
+    compose_jobs,
     compose_task,
+    composing_teachers,
     dataset_writer,
     random_policy,
+    summary_lines,
 )
 from mop_core.config import ConfigError
 from mop_core.data import read_dataset
 from mop_core.distill.states import episode_rows, offline_states
+from mop_core.layout import composed_file
+from mop_core.study import shift_grid, study_config
 
 T = 20  # control steps per episode in these tests
 
@@ -110,6 +120,23 @@ def test_written_datasets_read_back_with_their_composition(tmp_path):
     data = read_dataset(tmp_path / "random99.hdf5", verify_checksum=True, task="stand", level="medium")
     assert data.attrs["composition"] == "random99" and data.attrs["teacher_episodes"] == 1
     assert read_dataset(tmp_path / f"{REFERENCE}.hdf5").attrs["composition"] == REFERENCE
+
+
+def test_the_composing_teachers_are_the_ones_the_shift_students_learn_from(tiny_params):
+    teachers = composing_teachers(tiny_params)
+    assert [(t.task, t.level, t.actor) for t in teachers] == [("stand", "medium", "deterministic"),
+                                                              ("walk", "medium", "deterministic")]
+    assert all(run.teachers == teachers for run in build_catalogue(tiny_params).shift_students)
+    config = compose_config(shift_grid(tiny_params, study_config(tiny_params)))
+    jobs = compose_jobs(teachers, config, 7, 50)
+    assert [job[:6] for job in jobs] == [(t.paths.checkpoint, t.task, t.level, config, 7, 50) for t in teachers]
+    assert jobs[1][6]("online") == composed_file("walk", "medium", "online")
+    params = copy.deepcopy(tiny_params)
+    params["state_shift"].update(datasets=[], widths=[], correction_datasets=["offline"])
+    assert composing_teachers(params) == ()
+    summary = {"datasets": {"online": {"return_mean": 812.4}, "noise": {"return_mean": 300.6}}, "seconds": 12.3}
+    assert summary_lines({"stand-medium": summary}) == ["compose stand-medium: episode returns online 812, noise 301 "
+                                                        "(12 s)"]
 
 
 def test_the_thesis_compositions_and_pool_sizes():

@@ -17,8 +17,8 @@ from mop_core.envs import (
     borrow_env,
     flatten_observation,
     physics_replay_rewards,
-    set_step_threads,
 )
+from mop_core.runtime import set_step_threads
 from mop_core.tasks import get_task
 
 

@@ -9,7 +9,7 @@ from scipy import stats
 
 from mop_core.catalogue import Job
 from mop_core.config import ConfigError, InputFileError
-from mop_core.evaluation import EvalConfig, episode_seeds, run_jobs
+from mop_core.evaluation import episode_seeds, run_jobs
 from mop_core.policies import load_policy
 from mop_core.rollout import episode_returns
 from mop_core.statistics import (
@@ -20,6 +20,7 @@ from mop_core.statistics import (
     ratio_to_teacher,
     summarise_group,
 )
+from mop_core.study import EvalConfig
 from mop_core.teachers import load_teacher
 
 

@@ -63,6 +63,20 @@ def module_file(name: str) -> Path | None:
     return None
 
 
+def runtime_imports(tree: ast.AST) -> list[ast.AST]:
+    """Every import node of ``tree`` but those under ``if TYPE_CHECKING:`` (annotations only: no behaviour)."""
+    out, todo = [], [tree]
+    while todo:
+        node = todo.pop()
+        if isinstance(node, ast.If) and isinstance(node.test, ast.Name) and node.test.id == "TYPE_CHECKING":
+            todo += node.orelse
+            continue
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            out.append(node)
+        todo += ast.iter_child_nodes(node)
+    return out
+
+
 def imported_files(script: Path) -> set[str]:
     """Every repository file ``script`` imports, transitively (function-level imports included), and
     the ``__init__.py`` of every package on the way."""
@@ -73,7 +87,7 @@ def imported_files(script: Path) -> set[str]:
         if path in seen:
             continue
         seen.add(path)
-        for node in ast.walk(ast.parse(path.read_text())):
+        for node in runtime_imports(ast.parse(path.read_text())):
             names = []
             if isinstance(node, ast.Import):
                 names = [alias.name for alias in node.names]

@@ -270,33 +270,28 @@ def test_the_readme_shows_the_tested_commands():
     assert "dvc exp run --pull -S" in readme
 
 
-README_LIBRARIES = "## Use the data with other libraries"
-
-
-def readme_blocks(readme: str) -> list[tuple[str, str, str]]:
-    """Every fenced code block of the README: (its section heading, language, code)."""
-    blocks, section = [], ""
-    for part in re.split(r"^(## .*|```\w*\n(?:.*\n)*?```)$", readme, flags=re.M):
-        if part.startswith("## "):
-            section = part
-        elif part.startswith("```"):
-            language, _, code = part[3:].partition("\n")
-            blocks.append((section, language, code.removesuffix("```")))
+def markdown_blocks(text: str) -> list[tuple[str, str]]:
+    """Every fenced code block of a Markdown page: (its language, its code)."""
+    blocks = []
+    for block in re.findall(r"^```\w*\n(?:.*\n)*?```$", text, flags=re.M):
+        language, _, code = block[3:].partition("\n")
+        blocks.append((language, code.removesuffix("```")))
     return blocks
 
 
-def test_the_readmes_library_snippets_run_on_the_tiny_studys_outputs(repo, tmp_path):
-    """Every Python block of the README, and the shell commands of its section on other libraries,
-    run verbatim in order, in a copy of the tiny study (they write files of their own). The other
+def test_the_library_snippets_of_the_docs_run_on_the_tiny_studys_outputs(repo, tmp_path):
+    """Every code block of docs/ecosystem.md (Python and shell), then every Python block of the README,
+    run verbatim in order, in a copy of the tiny study (they write files of their own). The README's
     shell blocks are the two setup commands (.ci/run runs the tests' one; the record the study's) and
     the DVC one-liners the tests above run (test_the_readme_shows_the_tested_commands)."""
-    pytest.importorskip("minari", reason="the README's Minari and d3rlpy blocks need pip install -e '.[ecosystem]'")
-    pytest.importorskip("d3rlpy", reason="the README's Minari and d3rlpy blocks need pip install -e '.[ecosystem]'")
-    blocks = readme_blocks((ROOT / "README.md").read_text())
-    runnable = [(lang, code) for section, lang, code in blocks
-                if lang == "python" or (lang == "bash" and section == README_LIBRARIES)]
+    optional = "docs/ecosystem.md's Minari and d3rlpy blocks need pip install -e '.[ecosystem]'"
+    pytest.importorskip("minari", reason=optional)
+    pytest.importorskip("d3rlpy", reason=optional)
+    readme = markdown_blocks((ROOT / "README.md").read_text())
+    assert all(lang in ("bash", "python", "") for lang, _ in readme)  # "": the DAG drawing
+    runnable = markdown_blocks((ROOT / "docs" / "ecosystem.md").read_text())
+    runnable += [(lang, code) for lang, code in readme if lang == "python"]
     assert [lang for lang, _ in runnable] == ["python", "python", "bash", "python", "python"]
-    assert all(lang in ("bash", "python", "") for _, lang, _ in blocks)  # "": the DAG drawing
     work = tmp_path / "study"
     shutil.copytree(repo, work, symlinks=True)
     outputs = []
@@ -583,7 +578,7 @@ def test_bad_parameter_fails_before_compute_and_names_the_key(repo, tmp_path):
     params["study"]["tasks"] = ["stand", "walk"]
     params["train_teachers"]["actors"] = ["deterministic"]
     (work / "params.yaml").write_text(yaml.safe_dump(params))
-    student = [sys.executable, "stages/distill.py", "--loss", "mse", "--pairing", "medium", "--seed", "0"]
+    student = [sys.executable, "stages/distill.py", "--entry", "mse-medium", "--seeds", "0"]
     result = _run(student, work, check=False)
     assert result.returncode == 2
     assert "distill.losses: expected gaussian teachers for the kl loss: add gaussian to train_teachers.actors" \
@@ -595,8 +590,8 @@ def test_bad_parameter_fails_before_compute_and_names_the_key(repo, tmp_path):
     assert "distill.student.hidden_sizes: expected a non-empty list" in result.stderr
     params["distill"]["student"]["hidden_sizes"] = [16]
     (work / "params.yaml").write_text(yaml.safe_dump(params))
-    result = _run([*student[:5], "expert+medium+medium", *student[6:]], work, check=False)
-    assert "--pairing: expected one level or one per study task (2) joined by '+'" in result.stderr
+    result = _run([*student[:3], "mse-expert+medium+medium", *student[4:]], work, check=False)
+    assert "--entry: expected a distill entry of this study, one of ['mse-medium']" in result.stderr
     result = _run(student, work, check=False)
     assert "missing input data/teachers/medium-deterministic/stand-medium-deterministic-0.pt" in result.stderr
     assert not (work / "data" / "students").exists()

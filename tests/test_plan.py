@@ -1,4 +1,5 @@
-"""mop_core.plan: a profile's cost from measured rates, and shortened profiles that still run."""
+"""mop_core.plan: a profile's cost from measured rates (the catalogue's runs), and shortened profiles that still
+run."""
 
 from __future__ import annotations
 
@@ -6,8 +7,12 @@ import pytest
 import yaml
 from conftest import ROOT
 
-from mop_core.plan import Rates, one_level_grid, scaled_profile, stage_hours
+from mop_core.catalogue import build_catalogue
+from mop_core.compose import compose_config
+from mop_core.plan import STUDENT_STAGES, Rates, one_level_grid, scaled_profile, stage_hours
+from mop_core.study import shift_grid, study_config
 from mop_core.study_params import check_params
+from mop_core.teachers import teacher_entries
 
 THESIS = yaml.safe_load((ROOT / "profiles" / "thesis.yaml").read_text())
 RATES = Rates(device="test", td3=100.0, pbrl={"deterministic": 50.0, "gaussian": 40.0},
@@ -50,3 +55,27 @@ def test_a_shortened_thesis_profile_passes_the_params_check_and_keeps_the_grid(f
     assert one["study"]["levels"] == [THESIS["study"]["levels"][0]] and one["train_teachers"]["seeds"] == [0]
     assert one["distill"]["pairings"] == [THESIS["study"]["levels"][0]]
     assert stage_hours(one, RATES)["distill"][0] == 3 * len(THESIS["distill"]["seeds"])
+
+
+def test_the_runs_counted_are_the_catalogues_and_the_stages():
+    hours, catalogue = stage_hours(THESIS, RATES), build_catalogue(THESIS)
+    assert hours["train_shared_teachers"][0] == len(catalogue.shared_teachers) == 14
+    assert hours["distill"][0] == len(catalogue.mop_students())
+    assert sum(hours[stage][0] for stage in STUDENT_STAGES) == len(catalogue.students + catalogue.shift_students)
+    assert hours["distill_substitute"][0] == len(catalogue.substitute_students())
+    assert hours["shared_computation"][0] == len(catalogue.students)
+    # every eval job, the deterministic teachers on the transfer tasks included (3 levels x 2 tasks x stand_still)
+    assert hours["eval"][0] == len(catalogue.eval_jobs(transfer_tasks=("stand_still",))) == 878 + 6
+    # the teacher stages' entries are the catalogue's (they read neither the catalogue nor the student sections)
+    assert teacher_entries(THESIS) == catalogue.teacher_entries()
+    assert teacher_entries(THESIS, sharing=True) == catalogue.shared_teacher_entries()
+
+
+def test_compose_costs_the_pools_compose_rolls_out():
+    config = compose_config(shift_grid(THESIS, study_config(THESIS)))
+    # per task: the largest pools its datasets need, and their held-out sets' (1000 + 900 + 990, 100 + 90 + 99)
+    episodes = 2890 + 289 + config.reference_episodes
+    assert sum(config.pool_sizes().values()) + sum(config.pool_sizes(heldout=True).values()) == 2890 + 289
+    waves = -(-len(THESIS["study"]["tasks"]) // THESIS["state_shift"]["workers"])
+    assert stage_hours(THESIS, RATES)["compose"] == (
+        8, pytest.approx(waves * episodes * THESIS["study"]["episode_length"] / 5000.0 / 3600))

@@ -15,7 +15,6 @@ from mop_core.config import ConfigError
 from mop_core.distill.distiller import DistillConfig, Distiller, RankingConfig
 from mop_core.distill.states import task_states
 from mop_core.distill.student import Student, StudentConfig, StudentGroup
-from mop_core.distill.variants import variant_config
 from mop_core.nn import DeterministicActor, with_task_id
 from mop_core.ranking import (
     RANKING_LOSSES,
@@ -26,6 +25,7 @@ from mop_core.ranking import (
     ranking_loss,
 )
 from mop_core.study import RANKING_LOSS_NAMES
+from mop_core.variants import Ranking, Width
 
 LOSSES = sorted(RANKING_LOSSES)
 
@@ -154,7 +154,7 @@ def _targets(n: int = 32) -> list:
 def test_the_regularised_distillation_loss_adds_lambda_times_the_regulariser_with_gradients_everywhere(name):
     targets = _targets()
     plain = DistillConfig(student=StudentConfig(hidden_sizes=(16, 16)), batch_size=8)
-    config = variant_config(plain, f"rank_{name}")
+    config = Ranking(name).apply(plain)
     assert config.ranking.loss == name and config.ranking.active
     regularised, baseline = Distiller(config, [targets], 24, 6, [0]), Distiller(plain, [targets], 24, 6, [0])
     rows = [[regularised._rows(0, t, 8) for t in range(2)]]
@@ -215,10 +215,9 @@ def test_ranking_config_errors_name_the_parameter():
         DistillConfig(student=StudentConfig(hidden_sizes=(16, 16)), ranking=RankingConfig(layer_weights=(1.0,)))
     with pytest.raises(ConfigError, match="ranking.states: expected at most batch_size=8"):
         DistillConfig(batch_size=8, ranking=RankingConfig(loss="listwise", states=9))
-    with pytest.raises(ValueError, match="variant: expected"):
-        variant_config(DistillConfig(), "rank_ndcg")
-    assert variant_config(DistillConfig(), "w16").student.hidden_sizes == (16, 16)
-    assert variant_config(DistillConfig(), "") == DistillConfig()
+    with pytest.raises(ConfigError, match="loss: expected one of"):
+        Ranking("ndcg").apply(DistillConfig())
+    assert Width(16).apply(DistillConfig()).student.hidden_sizes == (16, 16)
 
 
 def test_the_hand_written_pairwise_backward_equals_autograds():

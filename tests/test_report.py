@@ -10,8 +10,11 @@ from pathlib import Path
 
 import pytest
 
-from mop_core.report import Run, StudyResults, render_report, seed_band
+from mop_core.report import render_report, seed_band
+from mop_core.results import Run, StudyResults
+from mop_core.runs import StudentRun
 from mop_core.statistics import confidence_interval
+from mop_core.variants import SHARING_VARIANTS
 
 TASKS = ["stand", "walk"]
 
@@ -168,6 +171,11 @@ def test_learning_curve_band_is_the_t_interval_over_seeds_at_common_steps():
     assert seed_band(curves, "missing") is None
 
 
+def _student(variant: str, seed: int, substitute: str = "") -> StudentRun:
+    """The catalogue's typed run of a data-sharing student (its teachers do not matter here)."""
+    return StudentRun("mse", "medium", seed, (), SHARING_VARIANTS[variant], substitute=substitute)
+
+
 def test_the_data_sharing_section_shows_figure_6_9_table_6_2_and_the_q_switch_shares(tmp_path):
     from mop_core.report_sharing import sharing_section
     results = _full_results()
@@ -179,7 +187,7 @@ def test_the_data_sharing_section_shows_figure_6_9_table_6_2_and_the_q_switch_sh
                              "student_mse-oqs_own_medium": _entry(350.0, 3, "training_seed", (0, 1, 2))}
     shares = {"stand": {"stand": 0.7, "walk": 0.3}, "walk": {"stand": 0.1, "walk": 0.9}}
     results.variants = [Run({"loss": "mse", "variant": variant, "pairing": "medium"}, seed,
-                            {"q_switch": shares} if variant == "oqs_own" else {}, [])
+                            {"q_switch": shares} if variant == "oqs_own" else {}, [], _student(variant, seed))
                         for variant in ("ds", "oqs_own") for seed in (0, 1, 2)]
     layer = results.shared["groups"]["mse_medium"]["pairs"]["stand-walk"]["layer1"]
     results.shared["groups"]["mse-ds_medium"] = {"students": 3, "pairs": {"stand-walk": {
@@ -229,7 +237,8 @@ def test_the_sharing_section_repeats_figure_6_9_and_table_6_2_on_a_substitutes_t
     results.evaluation["walk"] |= {"student_mse-mop_stand_still-medium": _entry(450.0, 3, "training_seed", (0, 1, 2))}
     shares = {"stand_still": {"stand": 0.4, "walk": 0.6}, "walk": {"stand": 0.2, "walk": 0.8}}
     results.substitutes = [Run({"loss": "mse", "variant": variant, "pairing": "medium", "substitute": "stand_still"},
-                               seed, {"q_switch": shares} if variant == "oqs_own" else {}, [])
+                               seed, {"q_switch": shares} if variant == "oqs_own" else {}, [],
+                               _student(variant, seed, "stand_still"))
                            for variant in ("mop", "oqs_own") for seed in (0, 1, 2)]
     layer = results.shared["groups"]["mse_medium"]["pairs"]["stand-walk"]["layer1"]
     results.shared["groups"]["mse-oqs_own_stand_still-medium"] = {"students": 3, "pairs": {"stand_still-walk": {

@@ -10,8 +10,8 @@ import torch
 
 from mop_core.artifacts import save_checkpoint
 from mop_core.config import ConfigError, to_dict
+from mop_core.distill.checkpoint import STUDENT_KIND, load_student
 from mop_core.distill.distiller import DistillConfig
-from mop_core.distill.run import STUDENT_KIND, load_student
 from mop_core.distill.student import Student, StudentConfig
 from mop_core.rollout import episode_returns
 from mop_core.shared_computation import (

@@ -1,30 +1,23 @@
 """mop_core/shift_study.py and mop_core/report_shift.py: the state_shift stage's measures and tables,
-and the state-shift students' names, configs and place in the catalogue (mop_core/runs.py,
-mop_core/distill/variants.py, mop_core/catalogue.py)."""
+the state-shift students' names, configs and place in the catalogue (mop_core/variants.py,
+mop_core/runs.py, mop_core/catalogue.py) and the stage's table rows (mop_core/shift_results.py)."""
 
 from __future__ import annotations
 
 import copy
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 from trajectories import ar1_episodes
 
 from mop_core.catalogue import build_catalogue
+from mop_core.data import LEVELS
 from mop_core.distill.distiller import distill_config
-from mop_core.distill.variants import variant_config
 from mop_core.layout import composed_file, dataset_file
 from mop_core.report_shift import shift_section
-from mop_core.runs import (
-    composed_parts,
-    composed_variant,
-    correction_parts,
-    correction_variant,
-    shift_data,
-    size_percent,
-    size_variant,
-)
+from mop_core.shift_results import describe, shift_stage, student_groups
 from mop_core.shift_study import (
     MeasureConfig,
     correction_table,
@@ -33,6 +26,7 @@ from mop_core.shift_study import (
     read_states,
     student_table,
 )
+from mop_core.variants import VARIANTS, Composed, Corrected, Ranking, Size, Width
 
 CONFIG = MeasureConfig(states=1000, k=3, bootstrap=4, classifier_epochs=5, threads=1)
 
@@ -176,24 +170,62 @@ def test_a_correction_gain_pairs_the_eval_returns_by_seed():
     assert gain["stand"]["to_teacher_gain"]["mean"] == pytest.approx(0.1)
 
 
-def test_variant_names_round_trip_and_change_one_setting(tiny_params):
-    assert composed_parts(composed_variant("random99", 16)) == ("random99", 16)
-    assert size_percent(size_variant(10)) == 10
-    assert composed_parts("w16") is None and size_percent("ds") is None and size_percent("data100") is None
+def test_the_shift_variants_are_named_from_their_fields_and_change_one_setting(tiny_params):
+    assert Composed("random99", 16).name == "on_random99_w16" and Size(10).name == "data10"
+    assert Corrected("reweight", "random90", 64).name == "reweight_random90_w64"
+    assert Corrected("dagger", "offline", 8).name == "dagger_offline_w8"
+    assert {VARIANTS[f] for f in ("composed", "size", "corrected")} == {Composed, Size, Corrected}
+    assert Composed("noise", 32) == Composed("noise", 32) != Composed("noise", 16)  # typed, hashable: group keys
     base = distill_config(tiny_params, "mse")
-    wide = variant_config(base, composed_variant("noise", 32))
-    assert wide.student.hidden_sizes == (32, 32) and wide.data_fraction == 1
-    assert variant_config(base, size_variant(30)).data_fraction == pytest.approx(0.3)
-    assert correction_parts(correction_variant("reweight", "random90", 64)) == ("reweight", "random90", 64)
-    assert correction_parts("on_random90_w64") is None and correction_parts("reweighted_x_w1") is None
-    assert shift_data(correction_variant("dagger", "offline", 8)) == ("offline", 8)
-    corrected = variant_config(base, correction_variant("dagger", "noise", 32))
+    wide = Composed("noise", 32).apply(base)
+    assert wide.student.hidden_sizes == (32, 32) and wide.data_fraction == 1 and wide.correction == "none"
+    assert Size(30).apply(base).data_fraction == pytest.approx(0.3)
+    assert Size(30).apply(base).student == base.student
+    corrected = Corrected("dagger", "noise", 32).apply(base)
     assert corrected.correction == "dagger" and corrected.student.hidden_sizes == (32, 32)
-    assert variant_config(base, correction_variant("reweight", "offline", 16)).correction == "reweight"
-    assert wide.correction == "none"
+    assert Corrected("reweight", "offline", 16).apply(base).correction == "reweight"
+    assert (Composed("noise", 8).composed, Corrected("dagger", "noise", 8).composed) == ("noise", "noise")
+    assert Corrected("dagger", "offline", 8).composed == "" and Size(10).composed == ""  # the offline datasets
+    assert (Corrected("reweight", "noise", 8).correction, Composed("noise", 8).correction) == ("reweight", "")
 
 
-def test_the_shift_students_are_in_their_own_batches_and_eval_jobs(tiny_params):
+def test_each_table_row_is_described_by_its_variants_fields():
+    row = {"data": "offline", "width": 256, "percent": 100, "correction": "none"}
+    assert describe(None, 256) == row  # plain MOP: the offline data at its width
+    assert describe(Width(16), 256) == row | {"width": 16}
+    assert describe(Composed("noise", 32), 256) == row | {"data": "noise", "width": 32}
+    assert describe(Size(10), 256) == row | {"percent": 10}
+    assert describe(Corrected("dagger", "offline", 8), 256) == row | {"width": 8, "correction": "dagger"}
+    assert describe(Corrected("reweight", "random90", 64), 256) == row | {"data": "random90", "width": 64,
+                                                                       "correction": "reweight"}
+    with pytest.raises(ValueError, match="ranking variant"):
+        describe(Ranking("pairwise"), 256)
+
+
+def test_the_table_rows_are_the_catalogues_students_references_first(tiny_params):
+    catalogue = build_catalogue(tiny_params)
+    groups = student_groups(catalogue, "medium", 16)
+    assert list(groups) == ["offline_w16", "offline_w8", "on_online_w8", "on_random99_w8", "data50",
+                            "reweight_random99_w8", "dagger_random99_w8"]
+    plain, runs = groups["offline_w16"]
+    assert plain is None and runs == [r for r in catalogue.mop_students() if r.loss == "mse"]
+    assert groups["offline_w8"][0] == Width(8) and {r.variant for r in groups["offline_w8"][1]} == {Width(8)}
+    assert [run for _, runs in list(groups.values())[2:] for run in runs] == list(catalogue.shift_students)
+    assert list(student_groups(catalogue, "medium", 8)) == list(groups)[1:]  # width 8's row: the width students'
+    assert student_groups(catalogue, "medium", 8)["offline_w8"][0] == Width(8)
+    stage = shift_stage(tiny_params, catalogue)
+    assert stage.active and stage.levels == ("medium", "medium") and stage.datasets == ("online", "random99")
+    inputs = stage.inputs(Path("eval.json"))
+    assert inputs["distill"] == [run.paths.metrics for _, runs in groups.values() for run in runs]
+    assert composed_file("walk", "medium", "reference") in inputs["compose"] and inputs["eval"] == [Path("eval.json")]
+    assert inputs["collect"] == [dataset_file(t, level) for t in ("stand", "walk") for level in LEVELS]
+    params = copy.deepcopy(tiny_params)
+    params["state_shift"].update(datasets=[], widths=[], data_percents=[], corrections=[], correction_datasets=[])
+    idle = shift_stage(params, build_catalogue(params))
+    assert not idle.active and not idle.measured_tasks and "pairing_levels" not in idle.start_metrics()
+
+
+def test_the_shift_students_are_in_their_own_entries_and_eval_jobs(tiny_params):
     catalogue = build_catalogue(tiny_params)
     names = [run.name for run in catalogue.shift_students]
     assert names == ["mse-on_online_w8-medium-0", "mse-on_random99_w8-medium-0", "mse-data50-medium-0",
@@ -213,7 +245,7 @@ def test_the_shift_students_are_in_their_own_batches_and_eval_jobs(tiny_params):
     assert dagger.reference_datasets == () and dagger.heldout_datasets == composed.heldout_datasets
     assert set(reweight.input_datasets) == {*reweight.datasets, *reweight.heldout_datasets,
                                             *reweight.reference_datasets}
-    assert {run.batch for run in catalogue.shift_students} <= set(catalogue.student_batches())
+    assert {run.entry for run in catalogue.shift_students} <= set(catalogue.student_entries())
     jobs = {(job.group, job.train_seed, job.checkpoint, job.eval_task) for job in catalogue.eval_jobs()}
     # the eval stage rolls every shift student out on each of its tasks (every return in the report is eval's)
     assert {(run.group, run.seed, run.paths.checkpoint, task) for run in catalogue.shift_students
@@ -224,7 +256,8 @@ def test_the_shift_students_are_in_their_own_batches_and_eval_jobs(tiny_params):
     assert build_catalogue(params).shift_students == ()
     params["state_shift"].update(corrections=["dagger"], correction_datasets=["offline"])
     (offline,) = build_catalogue(params).shift_students
-    assert offline.variant == "dagger_offline_w8" and offline.composed == "" and offline.heldout_datasets == ()
+    assert offline.variant == Corrected("dagger", "offline", 8) and offline.composed == ""
+    assert offline.heldout_datasets == ()
     assert offline.datasets == (dataset_file("stand", "medium"), dataset_file("walk", "medium"))
 
 

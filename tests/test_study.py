@@ -210,9 +210,9 @@ def test_the_teacher_seed_must_be_an_integer(tiny_params, value):
 def test_the_data_sharing_names_the_params_check_knows_are_the_runs_own():
     """study.py checks data_sharing without importing the run kinds (collect reads study.py): its name
     lists must stay equal to mop_core.runs'."""
-    from mop_core.runs import Q_SWITCH_JUDGES, SHARING_KINDS, sharing_variant
+    from mop_core.runs import SHARING_KINDS
     from mop_core.study import SHARING_STUDENTS, SHARING_TEACHERS
+    from mop_core.variants import SHARING_VARIANTS
 
     assert SHARING_TEACHERS == SHARING_KINDS
-    expected = {sharing_variant("ds"): "ds"} | {sharing_variant("oqs", judge): "oqs" for judge in Q_SWITCH_JUDGES}
-    assert SHARING_STUDENTS == expected
+    assert SHARING_STUDENTS == {name: v.kind for name, v in SHARING_VARIANTS.items() if v.shared_states}

@@ -9,7 +9,8 @@ from dataclasses import replace
 import pytest
 import torch
 
-from mop_core.artifacts import RunPaths, read_curve, save_checkpoint
+from mop_core.artifacts import read_curve, save_checkpoint
+from mop_core.layout import RunPaths
 from mop_core.runtime import TrainingDivergedError
 from mop_core.schedule import TrainSchedule
 from mop_core.training import (

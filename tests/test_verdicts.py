@@ -9,8 +9,8 @@ import pytest
 
 from mop_core.evidence import Evidence
 from mop_core.findings import FINDINGS, OWN, THESIS, Finding
-from mop_core.report import StudyResults
 from mop_core.report_verdicts import decide, plain_quote, verdict_record, verdict_section
+from mop_core.results import StudyResults
 from mop_core.statistics import confidence_interval
 from mop_core.verdicts import (
     ABOVE,

@@ -21,21 +21,18 @@ rewards of D_{j->i} without a copy of the observations) and the dataset's conten
 
 from __future__ import annotations
 
-import contextlib
-import errno
 import hashlib
-import json
 import os
-import shutil
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator, Mapping
+from typing import Any, Mapping
 
 import h5py
 import numpy as np
 
-from mop_core.config import InputFileError, OutputFileError, first_line
+from mop_core.config import InputFileError
+from mop_core.files import atomic_path, read_json, write_json  # noqa: F401  (re-exported by mop_core.data)
 from mop_core.tasks import REWARD_FEATURES
 
 FORMAT_VERSION = 1
@@ -83,49 +80,6 @@ def content_sha256(arrays: Mapping[str, np.ndarray]) -> str:
         digest.update(f"{name}|{array.dtype.str}|{array.shape}".encode())
         digest.update(array.tobytes())
     return digest.hexdigest()
-
-
-@contextlib.contextmanager
-def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary sibling of ``path``; on success rename it onto ``path`` (atomic on POSIX).
-
-    On failure the temporary file is removed and an existing ``path`` is left untouched, so a
-    reader never sees a half-written file under the final name. A write that fails for lack of
-    space (``ENOSPC``, or torch's ``unexpected pos`` for a short write) raises OutputFileError naming
-    ``path``. Temporary names match ``.dvcignore``'s ``.*.tmp-*``: a leftover never changes a hash.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        yield tmp
-        os.replace(tmp, path)
-    except (OSError, RuntimeError) as err:
-        if getattr(err, "errno", None) == errno.ENOSPC or "unexpected pos" in str(err):
-            free = shutil.disk_usage(path.parent).free
-            raise OutputFileError(f"{path}: could not be written, no space left on device ({free / 2**20:.0f} MiB "
-                                  f"free in {path.parent} now); the previous file, if any, is untouched") from err
-        raise
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
-def write_json(path: str | os.PathLike, payload: Any) -> None:
-    """Atomically write ``payload`` as indented JSON."""
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(payload, indent=2, sort_keys=True) + "\n")
-
-
-def read_json(path: str | os.PathLike) -> Any:
-    """A JSON file the stages wrote; a missing, empty or garbled file raises InputFileError naming it."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputFileError(f"{path}: file not found")
-    try:
-        return json.loads(path.read_text())
-    except (ValueError, UnicodeDecodeError) as err:
-        raise InputFileError(f"{path}: not valid JSON (empty, truncated or edited?): {first_line(err)}") from None
 
 
 def _write_array(h5: h5py.File, name: str, array: np.ndarray) -> None:

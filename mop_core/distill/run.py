@@ -17,10 +17,11 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from mop_core.artifacts import load_checkpoint, state_sha256, write_curve
+from mop_core.artifacts import read_curve, state_sha256, write_curve
 from mop_core.catalogue import check_student_inputs
-from mop_core.config import from_mapping, require, to_dict
-from mop_core.data import read_dataset_attrs, read_json
+from mop_core.config import require, to_dict
+from mop_core.data.hdf5 import read_dataset_attrs
+from mop_core.distill.checkpoint import STUDENT_KIND, student_policy
 from mop_core.distill.corrections import density_weights
 from mop_core.distill.distiller import DistillConfig, Distiller
 from mop_core.distill.losses import LOSSES, mse_per_state
@@ -35,9 +36,9 @@ from mop_core.distill.states import (
 )
 from mop_core.distill.student import Student
 from mop_core.envs import ACT_DIM, OBS_DIM
-from mop_core.nn import numpy_policy, with_task_id
+from mop_core.files import read_json
 from mop_core.rollout import policies_returns_and_states
-from mop_core.runs import Q_SWITCH_JUDGES, StudentRun
+from mop_core.runs import StudentRun
 from mop_core.runtime import derive_seeds
 from mop_core.schedule import TrainSchedule
 from mop_core.step_metrics import run_key, split_runs
@@ -46,8 +47,7 @@ from mop_core.tasks import check_task_list
 from mop_core.teachers import Teacher, TeacherConfig, check_teacher_checkpoint, load_teacher
 from mop_core.timings import per_second, write_timing
 from mop_core.training import RunPaths, finish_run, returns_summary, run_fingerprint, train_loop
-
-STUDENT_KIND = "mop_student"
+from mop_core.variants import Q_SWITCH_JUDGES
 
 
 @dataclass(frozen=True)
@@ -69,6 +69,13 @@ class StudentSources:
     heldout: tuple[Path, ...] = ()  # per task, held-out episodes of its data (the action error off the training
     #                                 states); () = none (a dataset share's held-out states: the rest of the dataset)
     references: tuple[Path, ...] = ()  # reweighted distillation: per task, the teacher's visited states
+
+    @classmethod
+    def of(cls, run: StudentRun) -> "StudentSources":
+        """What the catalogue's student ``run`` learns from (every seed of its entry learns from the same)."""
+        return cls(run.tasks, tuple(t.paths.checkpoint for t in run.teachers), run.datasets, run.state_datasets,
+                   tuple(tuple(t.paths.checkpoint for t in per_task) for per_task in run.candidates),
+                   run.variant.judge if run.candidates else "own", run.heldout_datasets, run.reference_datasets)
 
     def __post_init__(self) -> None:
         check_task_list(self.tasks, "tasks")
@@ -212,22 +219,6 @@ def tau_columns(taus: dict[str, list[float]]) -> dict[str, float]:
     """``{"a": [..], "b": [..]}`` per layer -> curve columns ``per_state_tau_<a|b>_layer<k>``."""
     return {f"per_state_tau_{variant}_layer{k + 1}": tau for variant, layers in taus.items()
             for k, tau in enumerate(layers)}
-
-
-def student_policy(student: Student, task_index: int, device: torch.device, sample_seed: int | None = None
-                   ) -> Callable[[np.ndarray], np.ndarray]:
-    """A numpy policy of the student for one task id. A Gaussian student acts with its mean, or, with
-    ``sample_seed``, with samples ``clip(mu + sigma eps, -1, 1)`` from a generator of that seed."""
-    generator = None
-    if sample_seed is not None:
-        if not student.gaussian:
-            raise ValueError("sample_seed: only a Gaussian (KL) student has actions to sample")
-        generator = torch.Generator(device).manual_seed(sample_seed)
-
-    if generator is None:
-        return numpy_policy(lambda x: student(x, task_index), device)
-    return numpy_policy(lambda x: student.actor.rsample(with_task_id(x, task_index, student.num_tasks), generator)[0],
-                        device)
 
 
 Rollouts = list[tuple[np.ndarray, np.ndarray | None]]  # per run: returns [episodes], visited states or None
@@ -515,32 +506,6 @@ def action_errors(student: Student, teachers: Sequence[Teacher], targets: Sequen
     return out
 
 
-@dataclass
-class LoadedStudent:
-    """A trained student rebuilt from its checkpoint, with the tasks its task ids stand for."""
-
-    student: Student
-    tasks: list[str]
-    config: DistillConfig
-    checkpoint: dict
-
-    def policy(self, task: str, sample_seed: int | None = None) -> Callable[[np.ndarray], np.ndarray]:
-        return student_policy(self.student, self.tasks.index(task), torch.device("cpu"), sample_seed)
-
-
-def load_student(path: str | Path) -> LoadedStudent:
-    """Rebuild a student from a ``distill_student`` checkpoint (no params.yaml needed)."""
-    return student_from_checkpoint(load_checkpoint(path, STUDENT_KIND))
-
-
-def student_from_checkpoint(payload: dict) -> LoadedStudent:
-    config = from_mapping(DistillConfig, payload["distill_config"], "distill_config")
-    student = Student(config.student, payload["obs_dim"], payload["act_dim"], len(payload["tasks"]),
-                      gaussian=LOSSES[config.loss].gaussian_student)
-    student.load_state_dict(payload["student"])
-    return LoadedStudent(student.eval().requires_grad_(False), list(payload["tasks"]), config, payload)
-
-
 def check_student_files(runs: list[StudentRun], study_seed: int, teacher_config: Callable[[str], TeacherConfig],
                         record: Path) -> None:
     """Before any compute: each teacher was trained as the study now says (task, level, seed, PBRL
@@ -563,6 +528,13 @@ def write_tau_curves(directory: Path, curve: list[dict]) -> None:
     keys = [key for key in (curve[0] if curve else {}) if key.startswith("per_state_tau_")]
     for key in keys:
         write_curve(directory / f"{key}.tsv", [{"step": row["step"], "tau": row[key]} for row in curve])
+
+
+def finish_students(runs: Sequence[StudentRun], records: Sequence[dict]) -> None:
+    """Per trained student: its per-state tau curves (:func:`write_tau_curves`) and a summary line."""
+    for run, metrics in zip(runs, records):
+        write_tau_curves(run.tau_dir, read_curve(run.paths.curve))
+        print_summary(run.name, metrics)
 
 
 def print_summary(name: str, metrics: dict) -> None:

@@ -19,7 +19,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from mop_core.data import read_dataset
+from mop_core.data.hdf5 import read_dataset
 from mop_core.distill.losses import reduce_ensemble
 from mop_core.nn import GaussianActor
 from mop_core.rollout import collect_episodes

@@ -1,0 +1,85 @@
+"""The import graph of mop_core and the stage scripts: no cycle, and a bounded longest import chain.
+
+Imports under ``if TYPE_CHECKING:`` (annotations only) do not count; function-level imports do.
+"""
+
+from __future__ import annotations
+
+import ast
+from functools import cache
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+LONGEST_CHAIN = 11  # modules, stage script included (the renovation's target is 10)
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[0] == "stages":
+        return f"stages.{parts[-1]}"
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+MODULES = {module_name(p): p for p in [*(ROOT / "mop_core").rglob("*.py"), *(ROOT / "stages").glob("*.py")]}
+
+
+def runtime_imports(tree: ast.AST) -> list[ast.AST]:
+    out, todo = [], [tree]
+    while todo:
+        node = todo.pop()
+        if isinstance(node, ast.If) and isinstance(node.test, ast.Name) and node.test.id == "TYPE_CHECKING":
+            todo += node.orelse
+            continue
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            out.append(node)
+        todo += ast.iter_child_nodes(node)
+    return out
+
+
+def imports(name: str) -> set[str]:
+    """The repository modules ``name`` imports (a package's ``__init__`` when it imports the package)."""
+    found = set()
+    for node in runtime_imports(ast.parse(MODULES[name].read_text())):
+        if isinstance(node, ast.Import):
+            candidates = [alias.name for alias in node.names]
+        else:
+            module = node.module or ""
+            candidates = [module, *(f"{module}.{alias.name}" for alias in node.names)]
+        for candidate in candidates:
+            if candidate == "common" and name.startswith("stages."):
+                candidate = "stages.common"
+            if candidate in MODULES and candidate != name:
+                found.add(candidate)
+    return found
+
+
+GRAPH = {name: imports(name) for name in MODULES}
+
+
+def test_the_import_graph_has_no_cycle():
+    state: dict[str, int] = {}
+    cycles = []
+
+    def visit(name: str, stack: list[str]) -> None:
+        state[name] = 1
+        for other in sorted(GRAPH[name]):
+            if state.get(other) == 1:
+                cycles.append(stack[stack.index(other):] + [name, other])
+            elif other not in state:
+                visit(other, stack + [name])
+        state[name] = 2
+
+    for name in sorted(GRAPH):
+        if name not in state:
+            visit(name, [])
+    assert not cycles, f"import cycles: {cycles}"
+
+
+def test_the_longest_import_chain_is_bounded():
+    @cache
+    def chain(name: str) -> tuple[str, ...]:
+        longest = max((chain(other) for other in GRAPH[name]), key=len, default=())
+        return (name, *longest)
+
+    worst = max((chain(name) for name in GRAPH), key=len)
+    assert len(worst) <= LONGEST_CHAIN, f"{len(worst)} modules: {' -> '.join(worst)}"
