@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import ast
+import importlib.util
 import os
+import sys
 from pathlib import Path
 
 import pytest
@@ -87,3 +90,27 @@ def tiny_teachers(tiny_collected, tmp_path_factory):
             train_teacher(task, DataSource(dataset, relabel, task), config, 0, 0, paths)
             checkpoints[(task, actor)] = paths.checkpoint
     return checkpoints, datasets
+
+
+def params_stage():
+    """stages/check_params.py as a module: its ``main`` is the params stage of dvc.yaml."""
+    if str(ROOT / "stages") not in sys.path:
+        sys.path.insert(0, str(ROOT / "stages"))
+    spec = importlib.util.spec_from_file_location("check_params_stage", ROOT / "stages" / "check_params.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def runtime_imports(tree: ast.AST) -> list[ast.AST]:
+    """Every import node of ``tree`` but those under ``if TYPE_CHECKING:`` (annotations only: no behaviour)."""
+    out, todo = [], [tree]
+    while todo:
+        node = todo.pop()
+        if isinstance(node, ast.If) and isinstance(node.test, ast.Name) and node.test.id == "TYPE_CHECKING":
+            todo += node.orelse
+            continue
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            out.append(node)
+        todo += ast.iter_child_nodes(node)
+    return out

@@ -9,7 +9,8 @@ import ast
 from functools import cache
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from conftest import ROOT, runtime_imports
+
 LONGEST_CHAIN = 11  # modules, stage script included (the renovation's target is 10)
 
 
@@ -21,19 +22,6 @@ def module_name(path: Path) -> str:
 
 
 MODULES = {module_name(p): p for p in [*(ROOT / "mop_core").rglob("*.py"), *(ROOT / "stages").glob("*.py")]}
-
-
-def runtime_imports(tree: ast.AST) -> list[ast.AST]:
-    out, todo = [], [tree]
-    while todo:
-        node = todo.pop()
-        if isinstance(node, ast.If) and isinstance(node.test, ast.Name) and node.test.id == "TYPE_CHECKING":
-            todo += node.orelse
-            continue
-        if isinstance(node, (ast.Import, ast.ImportFrom)):
-            out.append(node)
-        todo += ast.iter_child_nodes(node)
-    return out
 
 
 def imports(name: str) -> set[str]:

@@ -13,7 +13,7 @@ import zipfile
 from pathlib import Path
 
 import yaml
-from conftest import ROOT
+from conftest import ROOT, runtime_imports
 
 LIBRARY = ROOT / "mop_core"
 
@@ -61,20 +61,6 @@ def module_file(name: str) -> Path | None:
         if candidate.is_file():
             return candidate
     return None
-
-
-def runtime_imports(tree: ast.AST) -> list[ast.AST]:
-    """Every import node of ``tree`` but those under ``if TYPE_CHECKING:`` (annotations only: no behaviour)."""
-    out, todo = [], [tree]
-    while todo:
-        node = todo.pop()
-        if isinstance(node, ast.If) and isinstance(node.test, ast.Name) and node.test.id == "TYPE_CHECKING":
-            todo += node.orelse
-            continue
-        if isinstance(node, (ast.Import, ast.ImportFrom)):
-            out.append(node)
-        todo += ast.iter_child_nodes(node)
-    return out
 
 
 def imported_files(script: Path) -> set[str]:

@@ -6,7 +6,6 @@ Each case below passed the params stage before (or failed later, naming missing 
 from __future__ import annotations
 
 import copy
-import importlib.util
 import os
 import re
 import subprocess
@@ -15,7 +14,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from conftest import ROOT
+from conftest import ROOT, params_stage
 
 from mop_core.config import ConfigError
 from mop_core.study import StudyConfig, pairing_levels
@@ -44,14 +43,7 @@ def _refused(params: dict, message: str) -> None:
         check_params(params)
 
 
-def _params_stage():
-    """stages/check_params.py as a module (the params stage of dvc.yaml)."""
-    if str(ROOT / "stages") not in sys.path:
-        sys.path.insert(0, str(ROOT / "stages"))
-    spec = importlib.util.spec_from_file_location("check_params_stage", ROOT / "stages" / "check_params.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+
 
 
 # ---- a: every section and key is one a stage reads; dvc reruns the check on any change of the file -----
@@ -197,7 +189,7 @@ def test_the_params_stage_refuses_before_writing_anything(tiny_params, tmp_path,
     (tmp_path / "params.yaml").write_text(yaml.safe_dump(_set(tiny_params, *pairs), sort_keys=False))
     monkeypatch.chdir(tmp_path)
     with pytest.raises(ConfigError, match="^" + re.escape(message)):
-        _params_stage().main()
+        params_stage().main()
     assert not (tmp_path / "data").exists()
 
 

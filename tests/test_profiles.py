@@ -3,13 +3,11 @@ every key is written down (no silent library defaults), and it passes the params
 
 from __future__ import annotations
 
-import importlib.util
 import shutil
-import sys
 
 import pytest
 import yaml
-from conftest import ROOT
+from conftest import ROOT, params_stage
 
 PROFILES = sorted((ROOT / "profiles").glob("*.yaml"))
 
@@ -40,14 +38,7 @@ def test_a_profile_has_exactly_the_keys_of_params_yaml(profile):
     assert not missing and not extra, f"profiles/{profile.name}: missing {missing}, not in params.yaml {extra}"
 
 
-def _params_stage():
-    """stages/check_params.py as a module: its ``main`` is the params stage of dvc.yaml."""
-    if str(ROOT / "stages") not in sys.path:
-        sys.path.insert(0, str(ROOT / "stages"))
-    spec = importlib.util.spec_from_file_location("check_params_stage", ROOT / "stages" / "check_params.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+
 
 
 @pytest.mark.parametrize("profile", PROFILES, ids=lambda p: p.name)
@@ -56,5 +47,5 @@ def test_a_profile_passes_the_params_stage(profile, tmp_path, monkeypatch):
     # a scratch directory holding the profile as params.yaml; a bad value raises an error naming its key
     shutil.copy(profile, tmp_path / "params.yaml")
     monkeypatch.chdir(tmp_path)
-    _params_stage().main()
+    params_stage().main()
     assert (tmp_path / "data" / "params_checked.txt").is_file()
