@@ -1,4 +1,4 @@
-"""Speed of the state-shift measures (mop_core/shift.py, issue 18 part 4), measured in one run here.
+"""Speed of the state-shift measures (mop_core/shift/measures.py, issue 18 part 4), measured in one run here.
 
 Prints, for two sets of ``--states`` 24-float states (the walker's observation size; issue 18's target:
 20k x 20k in under a minute on 2 cores, all measures together):
@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from mop_core.runtime import configure_compute
-from mop_core.shift import classifier_test, knn_kl, split_half_null
+from mop_core.shift.measures import classifier_test, knn_kl, split_half_null
 
 TARGET_SECONDS = 60.0
 

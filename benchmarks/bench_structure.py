@@ -1,7 +1,7 @@
 """Speed of the shared-computation measures, measured in one run on this machine.
 
 Prints
-- Kendall tau-b rows/s on 256-neuron ReLU activations: ``mop_core.structure.kendall_tau_b``
+- Kendall tau-b rows/s on 256-neuron ReLU activations: ``mop_core.representations.measures.kendall_tau_b``
   (one-byte order masks, small chunks) vs the upper-triangle float64 version it replaced vs a
   ``scipy.stats.kendalltau`` loop, and the ratios;
 - the cost of the per-state tau curve during distillation (thesis Figure 6.4b): seconds per
@@ -27,8 +27,8 @@ from timing import rate
 from mop_core.distill.distiller import Distiller
 from mop_core.distill.states import task_states
 from mop_core.nn import DeterministicActor
+from mop_core.representations.measures import kendall_tau_b, per_state_tau_by_layer
 from mop_core.runtime import configure_compute
-from mop_core.structure import kendall_tau_b, per_state_tau_by_layer
 
 ROOT = Path(__file__).resolve().parents[1]
 

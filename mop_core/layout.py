@@ -58,7 +58,7 @@ HELDOUT_SUFFIX = "_heldout"  # a composed dataset's held-out episodes: ``<name>_
 
 
 def composed_file(task: str, level: str, name: str) -> Path:
-    """A composed dataset of task's ``level`` teacher's rollouts (thesis 5.2.4; mop_core.compose), its
+    """A composed dataset of task's ``level`` teacher's rollouts (thesis 5.2.4; mop_core.shift.compose), its
     held-out episodes (``heldout_name(name)``) or the teacher's reference episodes (``REFERENCE``)."""
     return DATA / "composed" / f"{task}-{level}-{name}.hdf5"
 

@@ -39,8 +39,8 @@ from typing import Any, Callable, Mapping, Sequence
 import yaml
 
 from mop_core.catalogue import build_catalogue
-from mop_core.compose import compose_config, composing_teachers
 from mop_core.runs import StudentRun
+from mop_core.shift.compose import compose_config, composing_teachers
 from mop_core.study import shift_grid, study_config
 
 
@@ -112,7 +112,7 @@ STUDENT_STAGES = ("distill", "distill_width", "distill_ranking", "distill_single
 
 def _compose_hours(params: Mapping[str, Any], rates: Rates) -> tuple[int, float]:
     """(tasks x composed datasets, hours): each task's pools, held-out pools and reference episodes
-    (mop_core.compose.ComposeConfig.pool_sizes, what compose_task rolls out), its processes in waves."""
+    (mop_core.shift.compose.ComposeConfig.pool_sizes, what compose_task rolls out), its processes in waves."""
     study = study_config(params)
     grid = shift_grid(params, study)
     config, teachers = compose_config(grid), composing_teachers(params)

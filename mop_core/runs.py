@@ -280,7 +280,7 @@ class StudentRun:
 
     @property
     def composed(self) -> str:
-        """The composed dataset it learns from (thesis 5.2.4; mop_core.compose), "" for the offline data."""
+        """The composed dataset it learns from (thesis 5.2.4; mop_core.shift.compose), "" for the offline data."""
         return self.variant.composed if self.variant else ""
 
     @property
@@ -290,7 +290,7 @@ class StudentRun:
 
     @property
     def heldout_datasets(self) -> tuple[Path, ...]:
-        """Per task, held-out episodes of its data's distribution (a composed dataset's: mop_core.compose),
+        """Per task, held-out episodes of its data's distribution (a composed dataset's: mop_core.shift.compose),
         on which its action error off the training states is measured; () when there are none."""
         if not self.composed:
             return ()

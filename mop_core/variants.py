@@ -24,7 +24,7 @@ Families (thesis sections):
   teachers (on U_j D_{j->i}) or by the offline Q-switch over task i's teachers on D_{j->i}, each
   candidate judged by its own critics or by the target task's; ``mop``: plain MOP's students of a
   substituted task set;
-- :class:`Composed` (5.2.4, Figure 5.8): states of a composed dataset (mop_core.compose), every
+- :class:`Composed` (5.2.4, Figure 5.8): states of a composed dataset (mop_core.shift.compose), every
   hidden layer ``width`` wide;
 - :class:`Size` (5.2): ``percent``% of each task's dataset's whole episodes;
 - :class:`Corrected` (5.3): a state-shift correction (reweight, dagger: mop_core.distill.corrections)
@@ -65,7 +65,7 @@ class Variant:
 
     @property
     def composed(self) -> str:
-        """The composed dataset its states come from (mop_core.compose); "" = the offline datasets."""
+        """The composed dataset its states come from (mop_core.shift.compose); "" = the offline datasets."""
         return ""
 
     @property

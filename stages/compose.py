@@ -6,7 +6,7 @@ For each study task, the deterministic teacher of the ``state_shift.pairing`` le
 ``distill.teacher_seed``) is rolled out in three pools of whole episodes (itself, itself with
 N(0, noise_std) action noise, uniformly random actions) and every ``state_shift.datasets`` entry is
 written as a dataset of ``state_shift.episodes`` episodes mixed by its composition
-(mop_core.compose), plus ``reference_episodes`` held-out teacher episodes: the teacher's state
+(mop_core.shift.compose), plus ``reference_episodes`` held-out teacher episodes: the teacher's state
 distribution the state_shift stage measures every dataset against. Tasks run in parallel,
 ``state_shift.workers`` single-threaded processes.
 
@@ -21,10 +21,10 @@ import time
 
 from common import load_params, require_inputs, run_stage
 
-from mop_core.compose import compose_config, compose_jobs, compose_teacher_data, composing_teachers, summary_lines
 from mop_core.data import write_json
 from mop_core.layout import RESULTS, composed_file, timing_file
 from mop_core.runtime import parallel_map, progress_enabled
+from mop_core.shift.compose import compose_config, compose_jobs, compose_teacher_data, composing_teachers, summary_lines
 from mop_core.study import shift_grid, study_config
 from mop_core.timings import write_timing
 

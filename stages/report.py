@@ -1,13 +1,13 @@
-"""report stage: results/report.md and its figures, from the run's result files (mop_core/report.py).
+"""report stage: results/report.md and its figures, from the run's result files (mop_core/report/document.py).
 
     python stages/report.py      # or: dvc repro report
 
 Reads only what the other stages wrote under results/ (metrics JSON, learning-curve TSVs, figures)
 for the runs of the study's catalogue; a missing file means that part of the study was not run, and
 its section says so. The report opens with this profile's scale beside the thesis's (profiles/thesis.yaml)
-and the verdict of every finding (mop_core/findings.py). Writes results/report.md, results/report/*.png,
+and the verdict of every finding (mop_core/report/findings.py). Writes results/report.md, results/report/*.png,
 results/verdicts.json (every finding's verdict and effects) and results/metrics.json (the headline
-numbers, mop_core/headline.py, and the verdict counts).
+numbers, mop_core/report/headline.py, and the verdict counts).
 """
 
 from __future__ import annotations
@@ -18,14 +18,14 @@ from common import load_params, run_stage
 
 from mop_core.catalogue import build_catalogue
 from mop_core.data import atomic_path, write_json
-from mop_core.evidence import Evidence
-from mop_core.headline import headline_metrics
 from mop_core.layout import HEADLINE_METRICS, RESULTS
-from mop_core.report import load_results, read_optional, render_report
-from mop_core.report_sharing import sharing_section
-from mop_core.report_shift import shift_section
-from mop_core.report_structure import structure_section
-from mop_core.report_verdicts import decide, verdict_record, verdict_section
+from mop_core.report.common_structure import structure_section
+from mop_core.report.document import load_results, read_optional, render_report
+from mop_core.report.evidence import Evidence
+from mop_core.report.headline import headline_metrics
+from mop_core.report.sharing import sharing_section
+from mop_core.report.shift import shift_section
+from mop_core.report.verdict_section import decide, verdict_record, verdict_section
 
 REPORT = RESULTS / "report.md"
 FIGURES = RESULTS / "report"

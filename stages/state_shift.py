@@ -3,9 +3,9 @@
     python stages/state_shift.py
 
 Per study task, the shift between the teacher's held-out visited states (the compose stage's reference
-episodes) and each dataset, the collect levels and the composed ones (mop_core.shift_study); then the
+episodes) and each dataset, the collect levels and the composed ones (mop_core.shift.study); then the
 state_shift students' returns from the eval stage, their action errors and each correction's gain, next
-to the offline references: plain MOP and the common_structure widths (the rows: mop_core.shift_results).
+to the offline references: plain MOP and the common_structure widths (the rows: mop_core.shift.results).
 
 Outputs: results/state_shift/metrics.json, figures/capacity.png (return against width per dataset) and
 figures/shift_returns.png (student/teacher return against the measured shift) under it, and
@@ -23,7 +23,7 @@ from mop_core.data import read_json, write_json
 from mop_core.eval_study import normalisers
 from mop_core.layout import COLLECT_METRICS, RESULTS, stage_dir, timing_file
 from mop_core.runtime import configure_compute
-from mop_core.shift_results import clear_figures, shift_stage, write_figures
+from mop_core.shift.results import clear_figures, shift_stage, write_figures
 from mop_core.timings import write_timing
 
 OUT = RESULTS / "state_shift"

@@ -1,4 +1,4 @@
-"""mop_core/compose.py: composed datasets (thesis 5.2.4) from a policy's rollouts, by whole episodes,
+"""mop_core/shift/compose.py: composed datasets (thesis 5.2.4) from a policy's rollouts, by whole episodes,
 with shared episode pools, and the teachers that compose them; and the dataset-share subset of
 mop_core/distill/states.py."""
 
@@ -10,7 +10,11 @@ import numpy as np
 import pytest
 
 from mop_core.catalogue import build_catalogue
-from mop_core.compose import (
+from mop_core.config import ConfigError
+from mop_core.data import read_dataset
+from mop_core.distill.states import episode_rows, offline_states
+from mop_core.layout import composed_file
+from mop_core.shift.compose import (
     REFERENCE,
     THESIS_COMPOSITIONS,
     ComposeConfig,
@@ -23,10 +27,6 @@ from mop_core.compose import (
     random_policy,
     summary_lines,
 )
-from mop_core.config import ConfigError
-from mop_core.data import read_dataset
-from mop_core.distill.states import episode_rows, offline_states
-from mop_core.layout import composed_file
 from mop_core.study import shift_grid, study_config
 
 T = 20  # control steps per episode in these tests

@@ -8,8 +8,8 @@ import yaml
 from conftest import ROOT
 
 from mop_core.catalogue import build_catalogue
-from mop_core.compose import compose_config
 from mop_core.plan import STUDENT_STAGES, Rates, one_level_grid, scaled_profile, stage_hours
+from mop_core.shift.compose import compose_config
 from mop_core.study import shift_grid, study_config
 from mop_core.study_params import check_params
 from mop_core.teachers import teacher_entries

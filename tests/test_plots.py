@@ -19,8 +19,8 @@ from mop_core.plots import (
     returns_bar_chart,
     sorted_activations,
 )
-from mop_core.report_structure import comparison
-from mop_core.results import Run, StudyResults
+from mop_core.report.common_structure import comparison
+from mop_core.report.results import Run, StudyResults
 
 PNG = b"\x89PNG\r\n\x1a\n"
 CURVES = {"teacher": [{"step": "10", "return_mean_stand": "1.5", "tau_layer1": "0.2"},

@@ -175,7 +175,7 @@ def test_pairwise_ranking_regularisation_raises_the_students_per_state_tau_in_ev
     ids rank alike (per-state tau-a 0.58 / 0.64 -> 0.81 / 0.87 here). Listwise and ApproxNDCG do not
     raise every layer's tau (measured: 0.58 / 0.41 and 0.77 / 0.58): they weigh the top of the
     ranking, tau weighs every neuron pair."""
-    from mop_core.structure import per_state_tau_by_layer
+    from mop_core.representations.measures import per_state_tau_by_layer
 
     torch.manual_seed(0)
     student = Student(StudentConfig(hidden_sizes=(32, 32)), 24, 6, 2)

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from mop_core.report import render_report, seed_band
-from mop_core.results import Run, StudyResults
+from mop_core.report.document import render_report, seed_band
+from mop_core.report.results import Run, StudyResults
 from mop_core.runs import StudentRun
 from mop_core.statistics import confidence_interval
 from mop_core.variants import SHARING_VARIANTS
@@ -177,7 +177,7 @@ def _student(variant: str, seed: int, substitute: str = "") -> StudentRun:
 
 
 def test_the_data_sharing_section_shows_figure_6_9_table_6_2_and_the_q_switch_shares(tmp_path):
-    from mop_core.report_sharing import sharing_section
+    from mop_core.report.sharing import sharing_section
     results = _full_results()
     evaluation = results.evaluation
     for task, other in (("stand", "walk"), ("walk", "stand")):
@@ -226,7 +226,7 @@ def test_the_data_sharing_section_shows_figure_6_9_table_6_2_and_the_q_switch_sh
 def test_the_sharing_section_repeats_figure_6_9_and_table_6_2_on_a_substitutes_task_set(tmp_path):
     """{stand_still, walk}: stand_still's MOP teacher is its teacher on D_stand->stand_still (an eval group of
     teachers on stand's data), its students the set's 'mop', 'ds', 'oqs_own' groups."""
-    from mop_core.report_sharing import sharing_section
+    from mop_core.report.sharing import sharing_section
     results = _full_results()
     results.evaluation["stand_still"] = {"teacher_from_stand_medium_deterministic": _entry(600.0),
                                          "teacher_from_walk_medium_deterministic": _entry(60.0),
@@ -253,7 +253,7 @@ def test_the_sharing_section_repeats_figure_6_9_and_table_6_2_on_a_substitutes_t
     assert "| medium | OQS (own critics) | stand_still-walk | 1 | -0.011 | n/a | 0.330 |" in markdown  # no thesis value
     assert "| medium | OQS (own critics) | stand_still | D_stand->stand_still: 0.400, D_walk->stand_still: 0.600 |" \
         in markdown
-    from mop_core.report import cross_task_section
+    from mop_core.report.document import cross_task_section
     results.evaluation["cross_task"] = {"medium": {task: {"stand": _entry(400.0), "stand_still": _entry(100.0)}
                                                    for task in TASKS}}
     assert "(stand_still: section 7b's second task set trains on it, from its base task's data)" in \

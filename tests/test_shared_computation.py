@@ -13,8 +13,8 @@ from mop_core.config import ConfigError, to_dict
 from mop_core.distill.checkpoint import STUDENT_KIND, load_student
 from mop_core.distill.distiller import DistillConfig
 from mop_core.distill.student import Student, StudentConfig
-from mop_core.rollout import episode_returns
-from mop_core.shared_computation import (
+from mop_core.representations.measures import hidden_activations, kendall_tau, kendall_tau_a, kendall_tau_b, linear_cka
+from mop_core.representations.shared_computation import (
     SharedComputationConfig,
     collect_visited,
     episode_seeds,
@@ -27,7 +27,7 @@ from mop_core.shared_computation import (
     untrained_like,
     visited_states,
 )
-from mop_core.structure import hidden_activations, kendall_tau, kendall_tau_a, kendall_tau_b, linear_cka
+from mop_core.rollout import episode_returns
 
 
 def _student(num_tasks: int, seed: int = 0, task_scale: float = 1.0) -> Student:

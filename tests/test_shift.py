@@ -1,4 +1,4 @@
-"""mop_core/shift.py (issue 18 part 4): the kNN KL estimator against Gaussians of known KL in 2, 8 and 24
+"""mop_core/shift/measures.py (issue 18 part 4): the kNN KL estimator against Gaussians of known KL in 2, 8 and 24
 dimensions and on identical distributions, its split-half null and bootstrap interval; the classifier
 two-sample test's AUC and density ratio against the Gaussians' own; every split by whole episodes on a
 trajectory-correlated process."""
@@ -13,7 +13,7 @@ import torch
 from scipy import stats
 from trajectories import ar1_episodes
 
-from mop_core.shift import (
+from mop_core.shift.measures import (
     ClassifierConfig,
     bootstrap_interval,
     classifier_test,

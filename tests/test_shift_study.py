@@ -1,6 +1,6 @@
-"""mop_core/shift_study.py and mop_core/report_shift.py: the state_shift stage's measures and tables,
+"""mop_core/shift/study.py and mop_core/report/shift.py: the state_shift stage's measures and tables,
 the state-shift students' names, configs and place in the catalogue (mop_core/variants.py,
-mop_core/runs.py, mop_core/catalogue.py) and the stage's table rows (mop_core/shift_results.py)."""
+mop_core/runs.py, mop_core/catalogue.py) and the stage's table rows (mop_core/shift/results.py)."""
 
 from __future__ import annotations
 
@@ -16,9 +16,9 @@ from mop_core.catalogue import build_catalogue
 from mop_core.data import LEVELS
 from mop_core.distill.distiller import distill_config
 from mop_core.layout import composed_file, dataset_file
-from mop_core.report_shift import shift_section
-from mop_core.shift_results import describe, shift_stage, student_groups
-from mop_core.shift_study import (
+from mop_core.report.shift import shift_section
+from mop_core.shift.results import describe, shift_stage, student_groups
+from mop_core.shift.study import (
     MeasureConfig,
     correction_table,
     effective_share,
@@ -105,7 +105,7 @@ def test_read_states_numbers_each_datasets_episodes(monkeypatch):
     ends = np.zeros(6, dtype=bool)
     ends[[2, 5]] = True
     arrays = {"observations": np.arange(12.0).reshape(6, 2), "timeouts": ends, "terminals": np.zeros(6, dtype=bool)}
-    monkeypatch.setattr("mop_core.shift_study.read_dataset", lambda path: type("D", (), {"arrays": arrays}))
+    monkeypatch.setattr("mop_core.shift.study.read_dataset", lambda path: type("D", (), {"arrays": arrays}))
     states, episodes = read_states({"reference": "r.hdf5", "online": "o.hdf5"})
     assert set(states) == {"reference", "online"} and states["online"].shape == (6, 2)
     assert episodes["reference"].tolist() == [0, 0, 0, 1, 1, 1]
@@ -144,7 +144,7 @@ def test_student_table_reads_the_eval_stages_returns_and_its_teacher_run():
 
 
 def test_eval_returns_are_each_runs_seed_mean_and_the_teacher_runs_mean():
-    from mop_core.shift_study import eval_returns
+    from mop_core.shift.study import eval_returns
 
     run = type("Run", (), {})
     runs = [type("Run", (), {"group": "student_x", "seed": s})() for s in (0, 1)]
@@ -155,7 +155,7 @@ def test_eval_returns_are_each_runs_seed_mean_and_the_teacher_runs_mean():
 
 
 def test_a_correction_gain_pairs_the_eval_returns_by_seed():
-    from mop_core.shift_study import correction_table
+    from mop_core.shift.study import correction_table
 
     norms = {t: {"random_return": 0.0, "expert_return": 1000.0} for t in ("stand", "walk")}
     records = {"plain": [_record(s, 0, 0) for s in (0, 1, 2)], "fix": [_record(s, 0, 0) for s in (0, 1, 2)]}

@@ -1,4 +1,4 @@
-"""Similarity measures beyond tau and linear CKA (mop_core/similarity.py) against direct
+"""Similarity measures beyond tau and linear CKA (mop_core/representations/similarity.py) against direct
 computations and the properties they must have."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ import math
 import pytest
 import torch
 
-from mop_core.similarity import debiased_cka, dormant_shares, procrustes_similarity, task_selectivity
-from mop_core.structure import linear_cka
+from mop_core.representations.measures import linear_cka
+from mop_core.representations.similarity import debiased_cka, dormant_shares, procrustes_similarity, task_selectivity
 
 
 def _data(n: int = 60, p: int = 8, seed: int = 0) -> torch.Tensor:

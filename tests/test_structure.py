@@ -9,7 +9,7 @@ import torch
 from scipy import stats
 
 from mop_core.distill.student import Student, StudentConfig
-from mop_core.structure import (
+from mop_core.representations.measures import (
     average_comparison,
     hidden_activations,
     kendall_tau,

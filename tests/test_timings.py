@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from mop_core.headline import headline_metrics
+from mop_core.report.headline import headline_metrics
 from mop_core.timings import stage_time_table, write_timing
 
 

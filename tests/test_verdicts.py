@@ -1,5 +1,5 @@
-"""The verdict rule (mop_core.verdicts), the findings registry (mop_core.findings) and the report's
-verdict table (mop_core.report_verdicts) on synthetic results whose answer is known."""
+"""The verdict rule (mop_core.report.verdicts), the findings registry (mop_core.report.findings) and the report's
+verdict table (mop_core.report.verdict_section) on synthetic results whose answer is known."""
 
 from __future__ import annotations
 
@@ -7,12 +7,11 @@ from pathlib import Path
 
 import pytest
 
-from mop_core.evidence import Evidence
-from mop_core.findings import FINDINGS, OWN, THESIS, Finding
-from mop_core.report_verdicts import decide, plain_quote, verdict_record, verdict_section
-from mop_core.results import StudyResults
-from mop_core.statistics import confidence_interval
-from mop_core.verdicts import (
+from mop_core.report.evidence import Evidence
+from mop_core.report.findings import FINDINGS, OWN, THESIS, Finding
+from mop_core.report.results import StudyResults
+from mop_core.report.verdict_section import decide, plain_quote, verdict_record, verdict_section
+from mop_core.report.verdicts import (
     ABOVE,
     BELOW,
     CONTRADICTED,
@@ -25,6 +24,7 @@ from mop_core.verdicts import (
     paired,
     versus_run,
 )
+from mop_core.statistics import confidence_interval
 
 THESIS_TEXT = Path(__file__).resolve().parents[2] / "shared" / "reference" / "mop-thesis.txt"
 TASKS = ["stand", "walk"]

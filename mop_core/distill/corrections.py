@@ -10,7 +10,7 @@ teacher's own T_i when it imitates well. Two corrections, each a ``distill.corre
 
   with c the probability of a classifier telling the teacher's held-out visited states (the compose
   stage's reference episodes) from D_i's states, cross-fitted over whole episodes
-  (mop_core.shift.crossfit_test): each set's episodes are dealt into two folds, and a
+  (mop_core.shift.measures.crossfit_test): each set's episodes are dealt into two folds, and a
   state's ratio comes from the classifier trained on the other fold's episodes of both sets, never
   on its own episode (an episode's states are near-duplicates: a classifier scoring states of the
   episodes it learned on reads them as D and underweights them); its AUC is the folds' held-out
@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mop_core.config import require
-from mop_core.shift import ClassifierConfig, crossfit_test, effective_share, row_episodes
+from mop_core.shift.measures import ClassifierConfig, crossfit_test, effective_share, row_episodes
 from mop_core.variants import SHIFT_CORRECTIONS
 
 CORRECTIONS = ("none", *SHIFT_CORRECTIONS)  # distill.correction: none, or a state_shift.corrections entry

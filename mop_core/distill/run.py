@@ -37,12 +37,12 @@ from mop_core.distill.states import (
 from mop_core.distill.student import Student
 from mop_core.envs import ACT_DIM, OBS_DIM
 from mop_core.files import read_json
+from mop_core.representations.measures import per_state_tau_by_layer
 from mop_core.rollout import policies_returns_and_states
 from mop_core.runs import StudentRun
 from mop_core.runtime import derive_seeds
 from mop_core.schedule import TrainSchedule
 from mop_core.step_metrics import run_key, split_runs
-from mop_core.structure import per_state_tau_by_layer
 from mop_core.tasks import check_task_list
 from mop_core.teachers import Teacher, TeacherConfig, check_teacher_checkpoint, load_teacher
 from mop_core.timings import per_second, write_timing

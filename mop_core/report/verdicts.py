@@ -1,6 +1,6 @@
 """Effects and verdicts: how the report decides whether this run reproduces a finding.
 
-A finding (mop_core.findings) is measured as one or more :class:`Effect` cells (e.g. one per task or
+A finding (mop_core.report.findings) is measured as one or more :class:`Effect` cells (e.g. one per task or
 layer): a signed quantity with its 95% interval, the interval's unit and n. Its :class:`Claim` says
 what the thesis asserts about that quantity: above 0, below 0, or equal to 0 within a margin.
 :func:`cell_verdict` then applies one rule, the same for every row:

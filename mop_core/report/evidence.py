@@ -1,5 +1,5 @@
-"""What the verdicts read: a run's results (mop_core.report.StudyResults and the state_shift record)
-as per-seed numbers of named policy groups, the unit every effect of mop_core.verdicts is built from.
+"""What the verdicts read: a run's results (mop_core.report.document.StudyResults and the state_shift record)
+as per-seed numbers of named policy groups, the unit every effect of mop_core.report.verdicts is built from.
 
 Returns are the eval stage's (``seed_means`` per group and task), as normalised scores
 ``100 (R - R_random) / (R_expert - R_random)`` so that margins and effects mean the same on every
@@ -16,7 +16,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from mop_core.results import StudyResults
+from mop_core.report.results import StudyResults
 from mop_core.runs import structure_group, student_group, student_recipe, teacher_group
 from mop_core.variants import Composed, Ranking, Sharing, SingleTask, Variant, Width
 

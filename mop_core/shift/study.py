@@ -1,8 +1,8 @@
 """The state_shift stage's work (thesis 5.2, issue 18): how far each dataset's states lie from the
-states the teacher visits, measured (mop_core.shift), next to how the students distilled on them do.
+states the teacher visits, measured (mop_core.shift.measures), next to how the students distilled on them do.
 
 1. :func:`measure_shift`: per study task, every dataset (the collect levels, the composed datasets)
-   against the reference: held-out episodes of the teacher (mop_core.compose). Per dataset D and
+   against the reference: held-out episodes of the teacher (mop_core.shift.compose). Per dataset D and
    teacher-visited states T, standardised by the task's pooled mean and standard deviation (one
    transform per task, so its datasets are comparable), every split by whole episodes (an
    episode's states are near-duplicates, so halves sharing episodes read "no shift" whatever D):
@@ -46,7 +46,7 @@ import numpy as np
 from mop_core.config import from_mapping, require
 from mop_core.data import read_dataset
 from mop_core.layout import REFERENCE
-from mop_core.shift import (
+from mop_core.shift.measures import (
     ClassifierConfig,
     crossfit_test,
     draw_rows,

@@ -16,7 +16,7 @@
    - *beyond CKA* (issue 17; linear CKA is 0.94-1.0 for every student and its untrained copy here):
      orthogonal Procrustes similarity, debiased CKA, per-neuron task selectivity (mean, and the
      share of neurons the id explains >= half of), and per task the dead / dormant share of each
-     layer (mop_core.similarity).
+     layer (mop_core.representations.similarity).
 3. :func:`summarise_students`: a group of students trained with different seeds -> mean and
    standard deviation over seeds of every figure (Table 6.1 rows).
 4. Two references a number is read against, measured the same way on the same kind of states:
@@ -40,16 +40,16 @@ import numpy as np
 import torch
 
 from mop_core.config import from_mapping, require
-from mop_core.rollout import collect_episodes
-from mop_core.runtime import derive_seeds, parallel_map
-from mop_core.similarity import debiased_cka, dormant_shares, procrustes_similarity, task_selectivity
-from mop_core.structure import (
+from mop_core.representations.measures import (
     TAU_VARIANTS,
     average_comparison,
     hidden_activations,
     kendall_tau,
     linear_cka,
 )
+from mop_core.representations.similarity import debiased_cka, dormant_shares, procrustes_similarity, task_selectivity
+from mop_core.rollout import collect_episodes
+from mop_core.runtime import derive_seeds, parallel_map
 from mop_core.study import positive_threads, section
 
 TIES_NOTE = ("Kendall's tau in two variants: tau-a = (C - D) / n0, the thesis's formula (6.2.2) and the "
@@ -198,7 +198,7 @@ SELECTIVE = 0.5  # a neuron is task-selective when the task id explains at least
 
 
 def beyond_cka(under_i: torch.Tensor, under_j: torch.Tensor) -> dict[str, float]:
-    """The measures that can tell students apart where linear CKA saturates (mop_core.similarity),
+    """The measures that can tell students apart where linear CKA saturates (mop_core.representations.similarity),
     on a layer's activations over the same states under ids i and j: orthogonal Procrustes
     similarity, debiased CKA, the mean task selectivity of the neurons that vary and the share of
     all neurons the task id explains at least half of (``SELECTIVE``)."""

@@ -1,7 +1,7 @@
 """The report's opening: this profile's scale beside the thesis's, and a verdict for every finding.
 
-:func:`decide` measures every registered finding (mop_core.findings) on a run and applies the rule of
-mop_core.verdicts; :func:`verdict_section` renders the two tables (the thesis's findings, then this
+:func:`decide` measures every registered finding (mop_core.report.findings) on a run and applies the rule of
+mop_core.report.verdicts; :func:`verdict_section` renders the two tables (the thesis's findings, then this
 run's own) with the prose of what this run shows, and :func:`verdict_record` the same as a JSON record
 (``results/verdicts.json``; its counts go into ``results/metrics.json``, so ``dvc metrics diff``
 compares them across runs).
@@ -13,10 +13,10 @@ import re
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
-from mop_core.evidence import Evidence
-from mop_core.findings import FINDINGS, Finding
-from mop_core.report import fmt, table
-from mop_core.verdicts import CONTRADICTED, INCONCLUSIVE, REPRODUCED, Effect, finding_verdict
+from mop_core.report.document import fmt, table
+from mop_core.report.evidence import Evidence
+from mop_core.report.findings import FINDINGS, Finding
+from mop_core.report.verdicts import CONTRADICTED, INCONCLUSIVE, REPRODUCED, Effect, finding_verdict
 
 MARKDOWN_LINK = re.compile(r"\[([^\]]*)\]\(#page-[^)]*\)")  # the thesis text's cross-reference links
 
@@ -74,8 +74,8 @@ def rows(decisions: Sequence[Decision]) -> list[list[str]]:
 
 HEADER = ["#", "section", "claim", "statistic (claim)", "effect [95% CI] (unit, n)", "smallest detectable",
           "verdict"]
-RULE = ("Rule (mop_core/verdicts.py): reproduced when the 95% interval of the effect lies on the claimed side of 0 "
-        "(or, for a claim of equality, inside the margin), contradicted when it lies wholly on the other side "
+RULE = ("Rule (mop_core/report/verdicts.py): reproduced when the 95% interval of the effect lies on the claimed side "
+        "of 0 (or, for a claim of equality, inside the margin), contradicted when it lies wholly on the other side "
         "(outside the margin), inconclusive otherwise: the interval straddles the boundary, fewer than 3 runs give "
         "no interval over runs (a teacher trained once: its episodes say nothing about another seed), or the "
         "finding needs a level, width or regulariser this profile does not run. Effects on returns are in "
@@ -127,7 +127,7 @@ def scale_lines(params: Mapping[str, Any] | None, thesis: Mapping[str, Any] | No
 
 def verdict_section(decisions: Sequence[Decision], params: Mapping[str, Any] | None = None,
                     thesis: Mapping[str, Any] | None = None) -> str:
-    from mop_core.findings import RETURN_MARGIN, TAU_MARGIN
+    from mop_core.report.findings import RETURN_MARGIN, TAU_MARGIN
 
     thesis_rows = [d for d in decisions if not d.finding.own]
     own_rows = [d for d in decisions if d.finding.own]

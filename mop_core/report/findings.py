@@ -2,9 +2,9 @@
 6.4 and Table 6.3) and this study's own, each a typed :class:`Finding` registered in one table.
 
 A finding quotes its claim (the thesis's words, with the line of shared/reference/mop-thesis.txt it
-stands on), says which statistic tests it, in which direction (:class:`mop_core.verdicts.Claim`), and
-measures it on a run (:class:`mop_core.evidence.Evidence` -> :class:`mop_core.verdicts.Effect` cells);
-mop_core.verdicts turns the cells into reproduced / contradicted / inconclusive. Returns are in
+stands on), says which statistic tests it, in which direction (:class:`mop_core.report.verdicts.Claim`), and
+measures it on a run (:class:`mop_core.report.evidence.Evidence` -> :class:`mop_core.report.verdicts.Effect` cells);
+mop_core.report.verdicts turns the cells into reproduced / contradicted / inconclusive. Returns are in
 normalised points (100 = published expert, 0 = random); a "matches" claim holds within
 :data:`RETURN_MARGIN` points, a tau equality within :data:`TAU_MARGIN`.
 
@@ -19,10 +19,8 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy.stats import beta, spearmanr
 
-from mop_core.evidence import Evidence
-from mop_core.statistics import TAU_BOUNDS, seed_interval
-from mop_core.variants import Variant
-from mop_core.verdicts import (
+from mop_core.report.evidence import Evidence
+from mop_core.report.verdicts import (
     ABOVE,
     BELOW,
     Claim,
@@ -34,6 +32,8 @@ from mop_core.verdicts import (
     versus_constant,
     versus_run,
 )
+from mop_core.statistics import TAU_BOUNDS, seed_interval
+from mop_core.variants import Variant
 
 MOP: Variant | None = None  # plain MOP's students: no variant
 RETURN_MARGIN = 10.0  # normalised points: "matches" = within 10% of the expert-random range

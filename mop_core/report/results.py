@@ -1,7 +1,7 @@
 """What a study's runs wrote, as the report and the verdicts read it: one owner of the result schema.
 
 :class:`Run` is one trained model (its catalogue run, :mod:`mop_core.runs`, in ``origin``);
-:class:`StudyResults` is everything the report shows (loaded by :func:`mop_core.report.load_results`).
+:class:`StudyResults` is everything the report shows (loaded by :func:`mop_core.report.document.load_results`).
 """
 
 from __future__ import annotations

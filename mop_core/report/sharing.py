@@ -16,9 +16,9 @@ from pathlib import Path
 from typing import Sequence
 
 from mop_core.plots import interval_panels
-from mop_core.report import eval_entry, fmt, fmt_ci, fmt_normalised, not_run, table
-from mop_core.report_structure import fmt_interval, seed_interval
-from mop_core.results import Run, StudyResults
+from mop_core.report.common_structure import fmt_interval, seed_interval
+from mop_core.report.document import eval_entry, fmt, fmt_ci, fmt_normalised, not_run, table
+from mop_core.report.results import Run, StudyResults
 from mop_core.runs import (
     TeacherRun,
     no_sharing_group,

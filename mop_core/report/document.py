@@ -24,7 +24,7 @@ from mop_core.distill.losses import LOSSES
 from mop_core.files import read_json
 from mop_core.layout import COLLECT_METRICS, RESULTS, dataset_summary_file, stage_dir
 from mop_core.plots import band_curves
-from mop_core.results import Run, StudyResults
+from mop_core.report.results import Run, StudyResults
 from mop_core.runs import (
     BEHAVIOUR_LEVELS,
     behaviour_group,
@@ -528,7 +528,8 @@ def shared_section(results: StudyResults) -> str:
             "CKA from the unbiased HSIC estimator (debiased CKA, Nguyen et al. 2021: plain CKA is inflated when "
             "the width is large against the states); per neuron, the share of its activation variance over "
             "(state, id) that the task id explains, averaged over the neurons that vary, and the share of all "
-            "neurons it explains at least half of (mop_core/similarity.py).", "", f"Ties: {shared['note']}", ""]
+            "neurons it explains at least half of (mop_core/representations/similarity.py).", "",
+            f"Ties: {shared['note']}", ""]
     out += activity_lines(shared)
     for group, path in results.figures.get("sorted_activations", {}).items():
         out += [f"![{group}]({path})", "",
@@ -596,9 +597,9 @@ TRANSFER_NOTES = {
 def render_report(results: StudyResults, figure_dir: Path, link_prefix: str,
                   later_sections: Sequence[str] = (), shift_sections: Sequence[str] = (), opening: str = "") -> str:
     """The report's Markdown; draws its own figures into ``figure_dir`` (linked as ``link_prefix`` +
-    file name). ``opening`` (mop_core.report_verdicts': the scale and the verdict table) follows the
-    header; ``later_sections`` (Markdown, e.g. mop_core.report_structure's) follow section 7,
-    ``shift_sections`` (mop_core.report_shift's, thesis 5.2) the distillation losses (section 4)."""
+    file name). ``opening`` (mop_core.report.verdict_section': the scale and the verdict table) follows the
+    header; ``later_sections`` (Markdown, e.g. mop_core.report.common_structure's) follow section 7,
+    ``shift_sections`` (mop_core.report.shift's, thesis 5.2) the distillation losses (section 4)."""
     figure_dir.mkdir(parents=True, exist_ok=True)
     sections = [header(results), *([opening] if opening else []), behaviour_section(results),
                 teachers_section(results, figure_dir, link_prefix),
@@ -642,7 +643,7 @@ def settings(params: Mapping[str, Any]) -> dict:
             "student_width": hidden[0] if hidden and len(set(hidden)) == 1 else "plain",
             "ranking": dict(distill.get("ranking", {})),
             "structure_pairing": params.get("common_structure", {}).get("pairing"),
-            # the study grid the verdicts (mop_core.findings) look their groups up in
+            # the study grid the verdicts (mop_core.report.findings) look their groups up in
             "widths": list(params.get("common_structure", {}).get("widths", [])),
             "ranking_losses": list(params.get("common_structure", {}).get("ranking_losses", [])),
             "single_task": list(params.get("common_structure", {}).get("single_task", [])),

@@ -1,4 +1,4 @@
-"""The state_shift stage's plan and what it derives from its student table (mop_core.shift_study):
+"""The state_shift stage's plan and what it derives from its student table (mop_core.shift.study):
 which students each table row holds and what the row is (:func:`student_groups`, :func:`describe`:
 from the catalogue's typed variants), the stage's inputs and measures per task (:class:`ShiftStage`),
 Hypothesis 1 on the measured axis (:func:`shift_correlations`) and the figures (Figure 5.8's return
@@ -18,7 +18,7 @@ from mop_core.layout import REFERENCE, composed_file, dataset_file
 from mop_core.plots import interval_panels
 from mop_core.runs import StudentRun, teacher_group
 from mop_core.runtime import derive_seeds
-from mop_core.shift_study import (
+from mop_core.shift.study import (
     MeasureConfig,
     correction_table,
     eval_returns,
@@ -117,14 +117,14 @@ class ShiftStage:
                 "eval": [evaluation]}
 
     def measure_task(self, task: str) -> dict[str, dict]:
-        """Every dataset of ``task`` against its teacher's reference (mop_core.shift_study.measure_shift)."""
+        """Every dataset of ``task`` against its teacher's reference (mop_core.shift.study.measure_shift)."""
         states, episodes = read_states(self.dataset_files(task))  # observations and each row's episode
         reference = states.pop("reference")
         seed = derive_seeds([self.study_seed, "state_shift", task], ("measure",))["measure"] % (2 ** 31)
         return measure_shift(states, reference, self.measure, seed, episodes)
 
     def add_students(self, metrics: dict, evaluation: Mapping, norms: Mapping[str, Mapping]) -> None:
-        """The student table (mop_core.shift_study.student_table: the eval stage's ``evaluation``), what
+        """The student table (mop_core.shift.study.student_table: the eval stage's ``evaluation``), what
         each row is, the corrections' gains and Hypothesis 1's correlations, into ``metrics``."""
         runs = {label: runs for label, (_, runs) in self.groups.items()}
         records = {label: [read_json(run.paths.metrics) for run in group] for label, group in runs.items()}
