@@ -30,7 +30,8 @@ from timing import rate
 
 from mop_core.config import from_mapping
 from mop_core.distill.checkpoint import student_policy
-from mop_core.distill.distiller import DistillConfig, Distiller, cumulative_weights, weighted_rows
+from mop_core.distill.config import DistillConfig
+from mop_core.distill.distiller import Distiller, cumulative_weights, weighted_rows
 from mop_core.distill.states import TaskStates, task_states, teacher_outputs
 from mop_core.nn import DeterministicActor
 from mop_core.ranking import RANKING_LOSSES

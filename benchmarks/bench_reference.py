@@ -52,7 +52,8 @@ from mop_core.agents.pbrl import PBRL, PBRLConfig
 from mop_core.agents.td3 import TD3, TD3Config
 from mop_core.data import Batch
 from mop_core.data.buffer import TransitionTensors
-from mop_core.distill.distiller import DistillConfig, Distiller
+from mop_core.distill.config import DistillConfig
+from mop_core.distill.distiller import Distiller
 from mop_core.distill.states import task_states
 from mop_core.distill.student import StudentConfig
 from mop_core.nn import DeterministicActor, EnsembleCritic

@@ -42,7 +42,7 @@ from mop_core.tasks import data_tasks, substitute_base, substitute_tasks
 from mop_core.variants import Variant
 
 if TYPE_CHECKING:
-    from mop_core.distill.distiller import DistillConfig
+    from mop_core.distill.config import DistillConfig
 
 BEHAVIOUR_LEVELS = ("medium", "expert")  # the collect stage's snapshots
 

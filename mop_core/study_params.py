@@ -18,7 +18,7 @@ from mop_core.agents.pbrl import PBRLConfig
 from mop_core.catalogue import LOSS_ACTORS, shift_variants, structure_variants
 from mop_core.collect import CollectConfig, collect_configs
 from mop_core.config import ConfigError, keys_under, require
-from mop_core.distill.distiller import DistillConfig, distill_config
+from mop_core.distill.config import DistillConfig, distill_config
 from mop_core.relabel import RelabelConfig
 from mop_core.representations.shared_computation import SharedComputationConfig, shared_computation_config
 from mop_core.shift.compose import ComposeConfig, compose_config

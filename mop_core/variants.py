@@ -40,7 +40,7 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, ClassVar, TypeVar
 
 if TYPE_CHECKING:
-    from mop_core.distill.distiller import DistillConfig
+    from mop_core.distill.config import DistillConfig
 
 SHIFT_CORRECTIONS = ("reweight", "dagger")  # state_shift.corrections: Corrected.method
 OFFLINE_DATA = "offline"  # a correction student's data that is the pairing's collect dataset, not a composed one

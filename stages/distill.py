@@ -15,7 +15,7 @@ from common import load_params, require_inputs, run_stage
 from mop_core.catalogue import LOSS_ACTORS, build_catalogue
 from mop_core.config import keys_under, require
 from mop_core.data import read_json
-from mop_core.distill.distiller import distill_config
+from mop_core.distill.config import distill_config
 from mop_core.distill.run import StudentSources, check_student_files, distill_students, finish_students
 from mop_core.layout import student_inputs_file
 from mop_core.runtime import configure_compute, progress_enabled, resolve_device

@@ -14,7 +14,8 @@ from mop_core.agents.pbrl import PBRLConfig
 from mop_core.config import ConfigError
 from mop_core.data import read_dataset
 from mop_core.distill.checkpoint import load_student, student_policy
-from mop_core.distill.distiller import DistillConfig, Distiller
+from mop_core.distill.config import DistillConfig
+from mop_core.distill.distiller import Distiller
 from mop_core.distill.losses import gaussian_kl_per_state, mse_per_state, q_per_state, reduce_ensemble
 from mop_core.distill.run import StudentSources, distill_student, distill_students, union_states
 from mop_core.distill.states import TaskStates, offline_states, online_states, q_switch_states, task_states

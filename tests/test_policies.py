@@ -13,7 +13,7 @@ from mop_core.artifacts import save_checkpoint, state_sha256
 from mop_core.collect import BEHAVIOUR_KIND
 from mop_core.config import InputFileError, to_dict
 from mop_core.distill.checkpoint import STUDENT_KIND
-from mop_core.distill.distiller import DistillConfig
+from mop_core.distill.config import DistillConfig
 from mop_core.distill.student import Student, StudentConfig
 from mop_core.nn import DeterministicActor, EnsembleCritic, with_task_id
 from mop_core.policies import POLICY_KINDS, TASK_CONDITIONED, checkpoint_kind, load_policy

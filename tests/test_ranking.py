@@ -12,7 +12,8 @@ import torch
 from scipy.stats import kendalltau
 
 from mop_core.config import ConfigError
-from mop_core.distill.distiller import DistillConfig, Distiller, RankingConfig
+from mop_core.distill.config import DistillConfig, RankingConfig
+from mop_core.distill.distiller import Distiller
 from mop_core.distill.states import task_states
 from mop_core.distill.student import Student, StudentConfig, StudentGroup
 from mop_core.nn import DeterministicActor, with_task_id

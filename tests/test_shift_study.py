@@ -14,7 +14,7 @@ from trajectories import ar1_episodes
 
 from mop_core.catalogue import build_catalogue
 from mop_core.data import LEVELS
-from mop_core.distill.distiller import distill_config
+from mop_core.distill.config import distill_config
 from mop_core.layout import composed_file, dataset_file
 from mop_core.report.shift import shift_section
 from mop_core.shift.results import describe, shift_stage, student_groups

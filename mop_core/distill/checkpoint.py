@@ -14,7 +14,7 @@ import torch
 
 from mop_core.artifacts import load_checkpoint
 from mop_core.config import from_mapping
-from mop_core.distill.distiller import DistillConfig
+from mop_core.distill.config import DistillConfig
 from mop_core.distill.losses import LOSSES
 from mop_core.distill.student import Student
 from mop_core.nn import numpy_policy, with_task_id

@@ -22,8 +22,9 @@ from mop_core.catalogue import check_student_inputs
 from mop_core.config import require, to_dict
 from mop_core.data.hdf5 import read_dataset_attrs
 from mop_core.distill.checkpoint import STUDENT_KIND, student_policy
+from mop_core.distill.config import DistillConfig
 from mop_core.distill.corrections import density_weights
-from mop_core.distill.distiller import DistillConfig, Distiller
+from mop_core.distill.distiller import Distiller
 from mop_core.distill.losses import LOSSES, mse_per_state
 from mop_core.distill.states import (
     TaskStates,

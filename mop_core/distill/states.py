@@ -24,8 +24,6 @@ from mop_core.distill.losses import reduce_ensemble
 from mop_core.nn import GaussianActor
 from mop_core.rollout import collect_episodes
 
-STATE_SOURCES = ("offline", "online")
-
 
 @dataclass
 class TaskStates:
