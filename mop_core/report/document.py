@@ -328,6 +328,11 @@ def teacher_run(results: StudyResults, task: str, group: str) -> dict | None:
     return entry
 
 
+def distils(actor: str) -> str:
+    """The losses that distil teachers of PBRL actor type ``actor`` (the loss table), e.g. 'MSE and Q'."""
+    return " and ".join(name.upper() for name, loss in LOSSES.items() if loss.teacher_actor == actor)
+
+
 def kl_rule_text(results: StudyResults) -> str:
     action = (results.evaluation or {}).get("eval", {}).get("gaussian_student_action", "mean")
     how = "by their mean" if action == "mean" else "by sampling from their Gaussian"
@@ -388,8 +393,9 @@ def losses_section(results: StudyResults, figure_dir: Path, link_prefix: str) ->
     band_curves(figure_dir / name, panels, references, "episode return",
                 "students by distillation loss (grey lines: teacher eval means)")
     out += [f"![losses]({link_prefix}{name})", "",
-            f"{curve_caption(list(student_groups.values()))}; MSE and Q distil the deterministic "
-            "teachers, KL the Gaussian ones. Grey lines: each teacher's eval-stage mean (named in the legend).", "",
+            f"{curve_caption(list(student_groups.values()))}; {distils('deterministic')} distil the deterministic "
+            f"teachers, {distils('gaussian')} the Gaussian ones. Grey lines: each teacher's eval-stage mean (named in "
+            "the legend).", "",
             table(STUDENT_HEADER, rows), "", student_caption(results, rows), kl_rule_text(results), ""]
     return "\n".join(out)
 
