@@ -20,9 +20,10 @@ from mop_core.catalogue import build_catalogue
 from mop_core.data import atomic_path, write_json
 from mop_core.layout import HEADLINE_METRICS, RESULTS
 from mop_core.report.common_structure import structure_section
-from mop_core.report.document import load_results, read_optional, render_report
+from mop_core.report.document import render_report
 from mop_core.report.evidence import Evidence
 from mop_core.report.headline import headline_metrics
+from mop_core.report.load import load_results, read_optional
 from mop_core.report.sharing import sharing_section
 from mop_core.report.shift import shift_section
 from mop_core.report.verdict_section import decide, verdict_record, verdict_section

@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from mop_core.report.document import render_report, seed_band
+from mop_core.report.document import render_report
+from mop_core.report.format import seed_band
 from mop_core.report.results import Run, StudyResults
 from mop_core.runs import StudentRun
 from mop_core.statistics import confidence_interval

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Sequence
 
 from mop_core.plots import interval_panels
-from mop_core.report.document import eval_entry, fmt, fmt_ci, fmt_normalised, not_run, table
+from mop_core.report.format import eval_entry, fmt, fmt_ci, fmt_normalised, not_run, table
 from mop_core.report.results import Run, StudyResults
 from mop_core.runs import student_group, student_recipe
 from mop_core.statistics import MIN_SEEDS_FOR_SEED_CI, TAU_BOUNDS

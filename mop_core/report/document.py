@@ -13,17 +13,27 @@ stage's (each cell says its unit and n).
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Mapping, Sequence
 
-from mop_core.artifacts import read_curve
-from mop_core.catalogue import Catalogue
 from mop_core.data.hdf5 import LEVELS
 from mop_core.distill.losses import LOSSES
-from mop_core.files import read_json
-from mop_core.layout import COLLECT_METRICS, RESULTS, dataset_summary_file, stage_dir
 from mop_core.plots import band_curves
+from mop_core.report.format import (
+    ci_caption,
+    curve_caption,
+    eval_entry,
+    fmt,
+    fmt_ci,
+    fmt_normalised,
+    group_runs,
+    normalisation_text,
+    not_run,
+    seed_band,
+    seed_means_text,
+    seeds_text,
+    table,
+)
 from mop_core.report.results import Run, StudyResults
 from mop_core.runs import (
     BEHAVIOUR_LEVELS,
@@ -34,120 +44,6 @@ from mop_core.runs import (
     teacher_group,
 )
 from mop_core.statistics import MIN_SEEDS_FOR_SEED_CI, confidence_interval
-
-
-def fmt(value: float | None, digits: int = 1) -> str:
-    return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
-
-
-def unit_text(entry: Mapping) -> str:
-    """How many units an interval is over, e.g. 'n=30 episodes', 'n=60 episodes of 2 seeds', 'n=3 seeds'."""
-    cut = "; cut at 0: too few runs for a t-interval" if entry.get("cut_at_bound") else ""
-    if entry.get("ci_unit") == "training_seed":
-        return f"n={entry['n']} seeds{cut}"
-    seeds = len(entry.get("seed_means", {}))
-    return f"n={entry['n']} episodes" + (f" of {seeds} seeds" if seeds > 1 else "") + cut
-
-
-def fmt_ci(entry: Mapping | None) -> str:
-    """``mean [low, high] (n=..)`` of an eval-stage group (``mean (n=1)`` when the interval is undefined)."""
-    if entry is None:
-        return "not evaluated"
-    if entry.get("ci_low") is None:
-        return f"{fmt(entry['mean'])} (n={entry.get('n', 1)})"
-    return f"{fmt(entry['mean'])} [{fmt(entry['ci_low'])}, {fmt(entry['ci_high'])}] ({unit_text(entry)})"
-
-
-def fmt_normalised(entry: Mapping | None) -> str:
-    """The same mean and interval as normalised scores (100 = published expert, 0 = random)."""
-    z = (entry or {}).get("normalised")
-    if not z:
-        return "n/a"
-    if z.get("ci_low") is None:
-        return fmt(z["mean"])
-    return f"{fmt(z['mean'])} [{fmt(z['ci_low'])}, {fmt(z['ci_high'])}]"
-
-
-def seed_means_text(entry: Mapping | None) -> str:
-    """Each training seed's mean return ('426.0 / 426.2'), or '-' for a policy trained once."""
-    means = (entry or {}).get("seed_means", {})
-    return " / ".join(fmt(v) for v in means.values()) if len(means) > 1 else "-"
-
-
-def ci_caption(entries: Sequence[Mapping | None]) -> str:
-    """What the 95% intervals of ``entries`` are over, in words, with their n."""
-    parts = []
-    episodes = sorted({(e["n"], len(e.get("seed_means", {})) or 1) for e in entries
-                       if e and e.get("ci_unit") == "episode"})
-    for n, seeds in episodes:
-        parts.append(f"{n} evaluation episodes of one trained policy" if seeds == 1 else
-                     f"{n} evaluation episodes pooled over {seeds} training seeds (fewer than 3 seeds: no interval "
-                     "over seeds; the seed means are listed)")
-    for n in sorted({e["n"] for e in entries if e and e.get("ci_unit") == "training_seed"}):
-        parts.append(f"the means of {n} training seeds")
-    if not parts:
-        return "no evaluation"
-    return "Student-t 95% intervals over " + "; over ".join(parts)
-
-
-def seeds_text(n: int) -> str:
-    """'1 seed, no interval' / '2 seeds, no interval' / '3 seeds, 95% CI': how a curve of n runs is drawn."""
-    if n < MIN_SEEDS_FOR_SEED_CI:
-        return f"{n} seed{'s' if n > 1 else ''}, no interval"
-    return f"{n} seeds, 95% CI"
-
-
-def curve_caption(groups: Sequence[Sequence[Run]]) -> str:
-    counts = sorted({len(runs) for runs in groups})
-    return "Learning curves: mean over training seeds per line (" + "; ".join(seeds_text(n) for n in counts) + ")"
-
-
-def table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
-    return "\n".join(lines)
-
-
-def seed_band(curves: Sequence[Sequence[Mapping[str, str]]], key: str) -> dict | None:
-    """Mean and 95% t-interval over seeds of column ``key`` at the steps every curve has."""
-    per_run = [{float(r["step"]): float(r[key]) for r in rows if key in r} for rows in curves]
-    per_run = [run for run in per_run if run]
-    if not per_run:
-        return None
-    steps = sorted(set.intersection(*(set(run) for run in per_run)))
-    stats = [confidence_interval([run[s] for run in per_run]) for s in steps]
-    band = {"step": steps, "mean": [s["mean"] for s in stats], "ci_low": None, "ci_high": None}
-    if len(per_run) >= MIN_SEEDS_FOR_SEED_CI:  # a t-interval over 2 seeds (t = 12.7) is no interval
-        band["ci_low"], band["ci_high"] = [s["ci_low"] for s in stats], [s["ci_high"] for s in stats]
-    return band
-
-
-def group_runs(runs: Sequence[Run], *fields: str) -> dict[tuple, list[Run]]:
-    groups: dict[tuple, list[Run]] = {}
-    for run in runs:
-        groups.setdefault(tuple(run.key[f] for f in fields), []).append(run)
-    return groups
-
-
-def eval_entry(results: StudyResults, task: str, group: str) -> dict | None:
-    if results.evaluation is None:
-        return None
-    return results.evaluation.get(task, {}).get(group)
-
-
-def not_run(what: str, how: str) -> str:
-    return f"*Not part of this run: {what}. {how}*"
-
-
-def normalisation_text(results: StudyResults) -> str:
-    """How returns become normalised scores in this run (R_random measured, R_expert published)."""
-    norms = (results.evaluation or {}).get("normalisation")
-    if not norms:
-        return ""
-    parts = [f"{task}: R_random {fmt(n['random_return'])} ({n['random_episodes']} uniformly random episodes, collect "
-             f"stage), R_expert {fmt(n['expert_return'])}" for task, n in norms.items()]
-    return ("Normalised score = 100 (R - R_random) / (R_expert - R_random), R_expert the published expert level "
-            f"({next(iter(norms.values()))['expert_source']}): " + "; ".join(parts) + ".")
 
 
 # ---- sections --------------------------------------------------------------------------------------
@@ -619,81 +515,3 @@ def render_report(results: StudyResults, figure_dir: Path, link_prefix: str,
 
 
 # ---- loading a run's results ------------------------------------------------------------------------
-def read_optional(path: Path) -> dict | None:
-    """A result file's content, or None where that part of the study was not run."""
-    return read_json(path) if path.is_file() else None
-
-
-def load_run(run, key: dict) -> Run | None:
-    """A trained run's metrics and curve (None if its metrics were not written)."""
-    metrics = read_optional(run.paths.metrics)
-    if metrics is None:
-        return None
-    return Run(key, run.seed, metrics, read_curve(run.paths.curve) if run.paths.curve.is_file() else [], run)
-
-
-def settings(params: Mapping[str, Any]) -> dict:
-    """The header's budgets (the params' values)."""
-    collect, teachers = params["collect"]["schedule"], params["train_teachers"]
-    distill, evaluation = params["distill"], params["eval"]
-    medium = (f"medium at {collect['medium_step']}" if not collect.get("medium_target_return") else
-              "medium: the first evaluation at or above the published medium return, else the best one; each task's "
-              "step in section 1")
-    summary = (f"collect {collect['total_steps']} TD3 gradient steps per task ({medium}); "
-               f"PBRL teachers {teachers['schedule']['steps']} steps, seeds {teachers['seeds']}; students "
-               f"{distill['schedule']['steps']} steps, seeds {distill['seeds']}; eval {evaluation['episodes']} "
-               "episodes per policy and task")
-    hidden = distill.get("student", {}).get("hidden_sizes", [])
-    return {"summary": summary,
-            "teacher_seed": distill["teacher_seed"], "snapshot_eval_episodes": collect.get("snapshot_eval_episodes"),
-            "student_width": hidden[0] if hidden and len(set(hidden)) == 1 else "plain",
-            "ranking": dict(distill.get("ranking", {})),
-            "structure_pairing": params.get("common_structure", {}).get("pairing"),
-            # the study grid the verdicts (mop_core.report.findings) look their groups up in
-            "widths": list(params.get("common_structure", {}).get("widths", [])),
-            "ranking_losses": list(params.get("common_structure", {}).get("ranking_losses", [])),
-            "single_task": list(params.get("common_structure", {}).get("single_task", [])),
-            "shift_widths": list(params.get("state_shift", {}).get("widths", [])),
-            "shift_datasets": list(params.get("state_shift", {}).get("datasets", []))}
-
-
-def load_results(catalogue: Catalogue, params: Mapping[str, Any]) -> StudyResults:
-    """Everything the stages wrote for the catalogue's runs (absent files: parts not run)."""
-    results = StudyResults(tasks=list(catalogue.tasks), levels=list(catalogue.levels), settings={})
-    results.collect = read_optional(COLLECT_METRICS)
-    for task in catalogue.tasks:
-        for level in LEVELS:
-            dataset = read_optional(dataset_summary_file(task, level))
-            if dataset:
-                results.datasets[f"{task}-{level}"] = dataset
-    for t in catalogue.teachers:
-        run = load_run(t, {"task": t.task, "level": t.level, "actor": t.actor})
-        results.teachers += [run] if run else []
-    for m in catalogue.multitask:
-        run = load_run(m, {"level": m.level})
-        results.multitask += [run] if run else []
-    for s in catalogue.students:
-        results.pairing_levels[s.pairing] = list(s.levels)
-        kind = results.substitutes if s.substitute else results.variants if s.variant else results.students
-        key = {"loss": s.loss} | ({"variant": s.variant.name} if s.variant else {}) | {"pairing": s.pairing} | (
-            {"substitute": s.substitute} if s.substitute else {})
-        run = load_run(s, key)
-        kind += [run] if run else []
-    results.evaluation = read_optional(stage_dir("eval") / "metrics.json")
-    shared = stage_dir("shared_computation")
-    results.shared = read_optional(shared / "metrics.json")
-    figures: dict = {}
-    for name, path in (("eval_returns", stage_dir("eval") / "returns.png"),
-                       ("tau_during_training", shared / "tau_during_training.png")):
-        if path.is_file():
-            figures[name] = path.relative_to(RESULTS).as_posix()
-    sorted_figures = {}
-    for members in catalogue.student_groups().values():
-        path = shared / "figures" / f"{members[0].name}.png"
-        if path.is_file():
-            sorted_figures[f"{members[0].recipe} {members[0].scope} (seed {members[0].seed})"] = \
-                path.relative_to(RESULTS).as_posix()
-    figures["sorted_activations"] = sorted_figures
-    results.figures = figures
-    results.settings = settings(params)
-    return results

@@ -17,7 +17,7 @@ from typing import Sequence
 
 from mop_core.plots import interval_panels
 from mop_core.report.common_structure import fmt_interval, seed_interval
-from mop_core.report.document import eval_entry, fmt, fmt_ci, fmt_normalised, not_run, table
+from mop_core.report.format import eval_entry, fmt, fmt_ci, fmt_normalised, not_run, table
 from mop_core.report.results import Run, StudyResults
 from mop_core.runs import (
     TeacherRun,

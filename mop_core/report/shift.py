@@ -9,7 +9,7 @@ from __future__ import annotations
 from typing import Mapping, Sequence
 
 from mop_core.layout import HELDOUT_SUFFIX
-from mop_core.report.document import fmt, not_run, table
+from mop_core.report.format import fmt, not_run, table
 from mop_core.study import OFFLINE_DATA
 
 

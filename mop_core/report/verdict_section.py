@@ -13,9 +13,9 @@ import re
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
-from mop_core.report.document import fmt, table
 from mop_core.report.evidence import Evidence
 from mop_core.report.findings import FINDINGS, Finding
+from mop_core.report.format import fmt, table
 from mop_core.report.verdicts import CONTRADICTED, INCONCLUSIVE, REPRODUCED, Effect, finding_verdict
 
 MARKDOWN_LINK = re.compile(r"\[([^\]]*)\]\(#page-[^)]*\)")  # the thesis text's cross-reference links
