@@ -27,7 +27,7 @@ from mop_core.runs import (
     TeacherRun,
     cross_group,
     own_teacher,
-    shared_teacher_runs,
+    relabelled_teacher_runs,
 )
 from mop_core.runtime import derive_seeds
 from mop_core.study import (
@@ -82,7 +82,7 @@ class Catalogue:
     students: tuple[StudentRun, ...]
     teacher_seed: int  # the teacher seed students learn from and cross-task tables show
     teacher_actors: tuple[str, ...]
-    shared_teachers: tuple[TeacherRun, ...] = ()  # teachers on relabelled data (data_sharing: DS, OQS)
+    relabelled_teachers: tuple[TeacherRun, ...] = ()  # teachers on relabelled data (data_sharing: DS, OQS)
     # the state-shift students (thesis 5.2: composed data x width, dataset size, corrections). The eval
     # stage rolls them out like every policy; the state_shift stage reads their returns from it
     shift_students: tuple[StudentRun, ...] = ()
@@ -123,7 +123,7 @@ class Catalogue:
                                  other) for other in (*self.tasks, *transfer_tasks) if other != task]
         for task in self.eval_tasks:
             for level in self.levels:
-                jobs += [Job(t.group, t.seed, t.paths.checkpoint, task) for t in self.shared_teachers
+                jobs += [Job(t.group, t.seed, t.paths.checkpoint, task) for t in self.relabelled_teachers
                          if t.task == task and t.level == level]
         for run in self.multitask:
             jobs += [Job(run.group, run.seed, run.paths.checkpoint, task, task) for task in run.tasks]
@@ -174,12 +174,12 @@ class Catalogue:
 
     def sharing_students(self) -> list[StudentRun]:
         """The data-sharing students of the study's tasks (thesis 6.4: DS, OQS)."""
-        return [run for run in self.students if run.shared_states and not run.substitute]
+        return [run for run in self.students if run.pooled_states and not run.substitute]
 
-    def shared_teacher_entries(self) -> dict[str, list[TeacherRun]]:
+    def relabelled_teacher_entries(self) -> dict[str, list[TeacherRun]]:
         """train_shared_teachers entry (``<kind>-<level>-<actor>``) -> the teachers it trains together."""
         entries: dict[str, list[TeacherRun]] = {}
-        for run in self.shared_teachers:
+        for run in self.relabelled_teachers:
             entries.setdefault(run.entry, []).append(run)
         return entries
 
@@ -299,7 +299,7 @@ def build_catalogue(params: Mapping[str, Any]) -> Catalogue:
     shift_students = tuple(make_student("mse", shift_pairing, seed, study.tasks, pairing_levels(shift_pairing, study),
                                         grid.teacher_seed, variant) for variant in shift for seed in grid.seeds)
     sharing = sharing_grid(params, study)
-    shared_teachers = tuple(t for level in sharing.levels for t in shared_teacher_runs(
+    relabelled_teachers = tuple(t for level in sharing.levels for t in relabelled_teacher_runs(
         study.tasks, level, sharing.teachers, grid.teacher_seed, sharing.substitutes))
     students += tuple(make_sharing_student(SHARING_VARIANTS[name], level, seed, study.tasks, grid.teacher_seed)
                       for level in sharing.levels for name in sharing.students for seed in grid.seeds)
@@ -314,7 +314,7 @@ def build_catalogue(params: Mapping[str, Any]) -> Catalogue:
         multitask=tuple(MultitaskRun(level, seed, study.tasks) for level in multitask.levels
                         for seed in multitask.seeds),
         students=students, teacher_seed=grid.teacher_seed, teacher_actors=teacher.actors,
-        shared_teachers=shared_teachers, shift_students=shift_students)
+        relabelled_teachers=relabelled_teachers, shift_students=shift_students)
 
 
 def student_inputs(runs: list[StudentRun]) -> dict:

@@ -151,7 +151,7 @@ def stage_hours(params: Mapping[str, Any], rates: Rates) -> dict[str, tuple[int,
         students[stage] = (sum(map(len, entries)), sum(_entry_seconds(runs, params, len(tasks), rates)
                                                        for runs in entries) / 3600)
     out |= {stage: students[stage] for stage in STUDENT_STAGES[:4]}
-    out["train_shared_teachers"] = _hours(catalogue.shared_teachers, lambda run: (  # a deterministic teacher's cost
+    out["train_shared_teachers"] = _hours(catalogue.relabelled_teachers, lambda run: (  # a deterministic teacher's cost
         t_sched["steps"] / rates.pbrl["deterministic"] + _evaluation_steps(t_sched, length) / rates.rollout))
     out |= {stage: students[stage] for stage in STUDENT_STAGES[4:6]}
     out["compose"] = _compose_hours(params, rates)

@@ -90,7 +90,7 @@ def student_entry(recipe: str, pairing: str) -> str:
     return f"{recipe}-{pairing}"
 
 
-def structure_group(recipe: str, pairing: str) -> str:
+def representation_group(recipe: str, pairing: str) -> str:
     """The shared_computation stage's key of a student group (Table 6.1 rows)."""
     return f"{recipe}_{pairing}"
 
@@ -98,7 +98,7 @@ def structure_group(recipe: str, pairing: str) -> str:
 def no_sharing_group(pairing: str) -> str:
     """The shared_computation key of the no-sharing reference: each task's single-task students of
     one seed measured against each other's as if they were one student's two task ids."""
-    return structure_group("mse-single", pairing)
+    return representation_group("mse-single", pairing)
 
 
 def cross_group(level: str, teacher_task: str) -> str:
@@ -239,9 +239,9 @@ class StudentRun:
         return bool(self.variant and self.variant.only_task)
 
     @property
-    def shared_states(self) -> bool:
+    def pooled_states(self) -> bool:
         """States from the union of every task's dataset (DS, OQS), not each task's own."""
-        return bool(self.variant and self.variant.shared_states)
+        return bool(self.variant and self.variant.pooled_states)
 
     @property
     def name(self) -> str:
@@ -258,8 +258,8 @@ class StudentRun:
         return student_group(self.recipe, self.scope)
 
     @property
-    def structure_group(self) -> str:
-        return structure_group(self.recipe, self.scope)
+    def representation_group(self) -> str:
+        return representation_group(self.recipe, self.scope)
 
     @property
     def paths(self) -> RunPaths:
@@ -322,7 +322,7 @@ class StudentRun:
     def state_datasets(self) -> tuple[Path, ...]:
         """The union every task's distillation states come from (DS, OQS: D = U_i D_i); () = each
         task's own dataset."""
-        return self.datasets if self.shared_states else ()
+        return self.datasets if self.pooled_states else ()
 
     def upstream_files(self) -> dict[str, tuple[Path, ...]]:
         """Every file it reads, by the stage that writes it (checked present before any compute)."""
@@ -368,7 +368,7 @@ def sharing_teachers(tasks: Sequence[str], level: str, kinds: Sequence[str], see
     return tuple(runs)
 
 
-def shared_teacher_runs(tasks: Sequence[str], level: str, kinds: Sequence[str], seed: int,
+def relabelled_teacher_runs(tasks: Sequence[str], level: str, kinds: Sequence[str], seed: int,
                         substitutes: Sequence[str] = ()) -> tuple[TeacherRun, ...]:
     """Every teacher on relabelled data of one level (the train_shared_teachers entries), each once:
     :func:`sharing_teachers` on the study's ``tasks``; then per substitute (data_sharing) its own

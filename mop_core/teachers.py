@@ -27,7 +27,7 @@ from mop_core.data.hdf5 import read_dataset, read_json, read_relabel
 from mop_core.envs import ACT_DIM, OBS_DIM
 from mop_core.nn import EnsembleCritic, numpy_policy
 from mop_core.rollout import episode_returns, trajectory_returns
-from mop_core.runs import TeacherRun, shared_teacher_runs, sharing_teacher_entry, teacher_entry
+from mop_core.runs import TeacherRun, relabelled_teacher_runs, sharing_teacher_entry, teacher_entry
 from mop_core.runtime import derive_seeds
 from mop_core.schedule import TrainSchedule
 from mop_core.step_metrics import run_key, split_runs
@@ -403,15 +403,15 @@ def multitask_from_checkpoint(payload: dict) -> MultiTaskPolicy:
 def teacher_entries(params: Mapping[str, Any], sharing: bool = False) -> dict[str, list[TeacherRun]]:
     """train_teachers entry (``<level>-<actor>``: every study task and train_teachers seed) -> the teachers
     it trains as one group; ``sharing``: the train_shared_teachers entries (``<kind>-<level>-deterministic``,
-    seed distill.teacher_seed: mop_core.runs.shared_teacher_runs). The catalogue's ``teachers`` and
-    ``shared_teachers`` (mop_core.catalogue, tested equal), from the study, train_teachers and data_sharing
+    seed distill.teacher_seed: mop_core.runs.relabelled_teacher_runs). The catalogue's ``teachers`` and
+    ``relabelled_teachers`` (mop_core.catalogue, tested equal), from the study, train_teachers and data_sharing
     sections alone: a teacher stage neither reads the student sections nor depends on the catalogue's code."""
     study = study_config(params)
     if sharing:
         grid = sharing_grid(params, study)
         seed = section(params, "distill")["teacher_seed"]
         runs = [run for level in grid.levels
-                for run in shared_teacher_runs(study.tasks, level, grid.teachers, seed, grid.substitutes)]
+                for run in relabelled_teacher_runs(study.tasks, level, grid.teachers, seed, grid.substitutes)]
     else:
         teachers = teacher_grid(params)
         runs = [TeacherRun(task, level, actor, seed) for task in study.tasks for level in study.levels

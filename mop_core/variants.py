@@ -8,7 +8,7 @@ its algorithm configs with ``register_learnable``). It carries everything a cons
 - :meth:`~Variant.apply`: the distillation config it trains with (the plain one with its change);
 - the inputs it adds to a plain student's: a composed dataset its states come from
   (:attr:`~Variant.composed`), the reference states of a density-ratio correction
-  (:attr:`~Variant.correction`), the union of every task's states (:attr:`~Variant.shared_states`),
+  (:attr:`~Variant.correction`), the union of every task's states (:attr:`~Variant.pooled_states`),
   the one task it is distilled on (:attr:`~Variant.only_task`);
 - the dvc.yaml stage that trains its entries (:attr:`~Variant.stage`) and the params section that
   lists them (:attr:`~Variant.section`).
@@ -74,7 +74,7 @@ class Variant:
         return ""
 
     @property
-    def shared_states(self) -> bool:
+    def pooled_states(self) -> bool:
         """States from the union of every task's dataset (DS, OQS), not each task's own."""
         return False
 
@@ -186,7 +186,7 @@ class Sharing(Variant):
         return f"{self.kind}_{self.judge}" if self.judge else self.kind
 
     @property
-    def shared_states(self) -> bool:
+    def pooled_states(self) -> bool:
         return self.kind != "mop"
 
 

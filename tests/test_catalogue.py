@@ -27,7 +27,7 @@ from mop_core.runs import (
     cross_group,
     is_cross_group,
     no_sharing_group,
-    structure_group,
+    representation_group,
 )
 from mop_core.runtime import derive_seeds
 from mop_core.variants import Ranking, Sharing, SingleTask
@@ -66,7 +66,7 @@ def test_the_tiny_study_has_these_runs_in_this_order(catalogue):
                                                     "mse-single_walk-medium-0", "mse-ds-medium-0",
                                                     "mse-oqs_own-medium-0", "mse-oqs_target-medium-0",
                                                     "mse-mop-stand_still-medium-0", "mse-oqs_own-stand_still-medium-0"]
-    assert [t.name for t in catalogue.shared_teachers] == [
+    assert [t.name for t in catalogue.relabelled_teachers] == [
         "stand-from-stand+walk-medium-deterministic-0", "walk-from-stand+walk-medium-deterministic-0",
         "stand-from-walk-medium-deterministic-0", "walk-from-stand-medium-deterministic-0",
         # the substitute's set {stand_still, walk} on stand's and walk's data: walk's teachers are reused
@@ -93,13 +93,14 @@ def test_run_names_groups_and_files(catalogue):
     assert multitask.paths.checkpoint == Path("data/multitask/medium-0.pt")
     assert multitask.reference_group() == "teacher_medium_deterministic"
     student = catalogue.students[2]
-    assert student.group == "student_kl_medium" and structure_group("kl", "medium") == "kl_medium"
+    assert student.group == "student_kl_medium" and representation_group("kl", "medium") == "kl_medium"
     assert student.paths.checkpoint == Path("data/students/kl-medium/kl-medium-0.pt") and student.entry == "kl-medium"
     assert student.paths.resume == Path("data/resume/students-kl-medium.pt")  # the group's, shared by its seeds
     assert student.tasks == TASKS and student.levels == ("medium", "medium") and student.teacher_seed == 0
     variant = catalogue.students[4]  # a common-structure variant: the plain MSE student's teachers, its own files
     assert variant.variant == Ranking("pairwise") and variant.recipe == "mse-rank_pairwise"
-    assert variant.group == "student_mse-rank_pairwise_medium" and variant.structure_group == "mse-rank_pairwise_medium"
+    assert variant.group == "student_mse-rank_pairwise_medium"
+    assert variant.representation_group == "mse-rank_pairwise_medium"
     assert variant.paths.checkpoint == Path("data/students/mse-rank_pairwise-medium/mse-rank_pairwise-medium-0.pt")
     assert variant.teachers == catalogue.students[0].teachers
     assert student.datasets == (Path("data/datasets/stand-medium.hdf5"), Path("data/datasets/walk-medium.hdf5"))
@@ -231,7 +232,7 @@ def test_the_teacher_seed_students_learn_from(tiny_params):
 
 def test_data_sharing_runs_their_teachers_files_and_eval_jobs(catalogue):
     """DS: task i's teacher on U_j D_{j->i}; OQS: task i's teachers on D_{j->i}, j != i, and MOP's for j = i."""
-    ds, _, oqs_stand, _ = catalogue.shared_teachers[:4]  # the study's tasks' (the substitute's set follows)
+    ds, _, oqs_stand, _ = catalogue.relabelled_teachers[:4]  # the study's tasks' (the substitute's set follows)
     assert ds.data_tasks == ("stand", "walk") and ds.sharing == "ds" and ds.group == "teacher_ds_medium_deterministic"
     assert ds.datasets == (Path("data/datasets/stand-medium.hdf5"), Path("data/datasets/walk-medium.hdf5"))
     assert ds.relabels == (Path("data/relabelled/stand-medium.hdf5"), Path("data/relabelled/walk-medium.hdf5"))
@@ -240,12 +241,12 @@ def test_data_sharing_runs_their_teachers_files_and_eval_jobs(catalogue):
     assert oqs_stand.sharing == "oqs" and oqs_stand.group == "teacher_from_walk_medium_deterministic"
     assert oqs_stand.datasets == (Path("data/datasets/walk-medium.hdf5"),)
     assert oqs_stand.entry == "oqs-medium-deterministic"
-    assert set(catalogue.shared_teacher_entries()) == {"ds-medium-deterministic", "oqs-medium-deterministic"}
+    assert set(catalogue.relabelled_teacher_entries()) == {"ds-medium-deterministic", "oqs-medium-deterministic"}
     plain = catalogue.teachers[0]
     assert plain.sharing == "" and plain.datasets == (Path("data/datasets/stand-medium.hdf5"),)  # MOP's: unchanged
     students = {s.variant.name: s for s in catalogue.sharing_students()}
     assert set(students) == {"ds", "oqs_own", "oqs_target"}
-    assert students["ds"].teachers == catalogue.shared_teachers[:2] and not students["ds"].candidates
+    assert students["ds"].teachers == catalogue.relabelled_teachers[:2] and not students["ds"].candidates
     own = students["oqs_own"]
     assert [t.name for t in own.teachers] == ["stand-medium-deterministic-0", "walk-medium-deterministic-0"]
     assert [[t.name for t in c] for c in own.candidates] == [
@@ -266,7 +267,7 @@ def test_data_sharing_runs_their_teachers_files_and_eval_jobs(catalogue):
 def test_a_substitute_runs_mop_ds_and_oqs_on_its_task_set_from_its_base_tasks_data(catalogue):
     """data_sharing.substitutes [stand_still]: the set {stand_still, walk} where stand_still learns from
     stand's datasets relabelled (D_{stand->stand_still}); walk's teachers are the study set's."""
-    own, ds, from_walk = catalogue.shared_teachers[4:]
+    own, ds, from_walk = catalogue.relabelled_teachers[4:]
     assert (own.task, own.data_tasks, own.entry) == ("stand_still", ("stand",), "oqs-medium-deterministic")
     assert own.datasets == (Path("data/datasets/stand-medium.hdf5"),)
     assert own.relabels == (Path("data/relabelled/stand-medium.hdf5"),)  # its stand_still column
@@ -276,12 +277,12 @@ def test_a_substitute_runs_mop_ds_and_oqs_on_its_task_set_from_its_base_tasks_da
     assert (mop.name, mop.entry, mop.group) == ("mse-mop-stand_still-medium-0", "mse-mop-stand_still-medium",
                                                 "student_mse-mop_stand_still-medium")
     assert mop.tasks == ("stand_still", "walk") and mop.data_tasks == ("stand", "walk")
-    assert mop.teachers == (own, TeacherRun("walk", "medium", "deterministic", 0)) and not mop.shared_states
+    assert mop.teachers == (own, TeacherRun("walk", "medium", "deterministic", 0)) and not mop.pooled_states
     assert mop.datasets == (Path("data/datasets/stand-medium.hdf5"), Path("data/datasets/walk-medium.hdf5"))
     assert [[t.name for t in c] for c in oqs.candidates] == [
         ["stand_still-from-stand-medium-deterministic-0", "stand_still-from-walk-medium-deterministic-0"],
         ["walk-from-stand-medium-deterministic-0", "walk-medium-deterministic-0"]]
-    assert oqs.state_datasets == mop.datasets and oqs.structure_group == "mse-oqs_own_stand_still-medium"
+    assert oqs.state_datasets == mop.datasets and oqs.representation_group == "mse-oqs_own_stand_still-medium"
     assert catalogue.eval_tasks == ("stand", "walk", "stand_still")
     assert catalogue.references()["student_mse-mop_stand_still-medium"] == {
         "stand_still": Reference("teacher_from_stand_medium_deterministic", 0),
@@ -307,7 +308,7 @@ def test_substitute_errors_name_the_parameter(tiny_params, sharing, error):
 
 def test_no_data_sharing_runs_when_the_section_is_empty(tiny_params):
     catalogue = build_catalogue(_with(tiny_params, data_sharing={"levels": []}))
-    assert catalogue.shared_teachers == () and catalogue.sharing_students() == []
+    assert catalogue.relabelled_teachers == () and catalogue.sharing_students() == []
 
 
 def test_transfer_tasks_add_cross_task_jobs_only(tiny_params):
@@ -360,7 +361,7 @@ def test_single_task_students_learn_from_their_task_alone_and_form_the_no_sharin
     assert stand == StudentRun("mse", "medium", 0, (TeacherRun("stand", "medium", "deterministic", 0),),
                                SingleTask("stand"))
     assert (stand.tasks, walk.tasks) == (("stand",), ("walk",))
-    assert (walk.entry, walk.group, walk.structure_group) == (
+    assert (walk.entry, walk.group, walk.representation_group) == (
         "mse-single_walk-medium", "student_mse-single_walk_medium", "mse-single_walk_medium")
     assert walk.datasets == (Path("data/datasets/walk-medium.hdf5"),)
     assert catalogue.single_task_students() == {"medium": {0: [stand, walk]}}

@@ -215,4 +215,4 @@ def test_the_data_sharing_names_the_params_check_knows_are_the_runs_own():
     from mop_core.variants import SHARING_VARIANTS
 
     assert SHARING_TEACHERS == SHARING_KINDS
-    assert SHARING_STUDENTS == {name: v.kind for name, v in SHARING_VARIANTS.items() if v.shared_states}
+    assert SHARING_STUDENTS == {name: v.kind for name, v in SHARING_VARIANTS.items() if v.pooled_states}

@@ -39,7 +39,7 @@ from mop_core.runs import (
     BEHAVIOUR_LEVELS,
     behaviour_group,
     multitask_group,
-    structure_group,
+    representation_group,
     student_group,
     teacher_group,
 )
@@ -385,8 +385,8 @@ def shared_section(results: StudyResults) -> str:
     shared = results.shared
     rows = []
     study_order = list(dict.fromkeys(
-        [structure_group(r.key["loss"], r.key["pairing"]) for r in results.students]
-        + [r.origin.structure_group for r in results.variants]))
+        [representation_group(r.key["loss"], r.key["pairing"]) for r in results.students]
+        + [r.origin.representation_group for r in results.variants]))
     ordered = sorted(shared["groups"], key=lambda g: study_order.index(g) if g in study_order else len(study_order))
     for group in ordered:  # the study's loss order (mse, q, kl), not the JSON file's sorted keys
         summary = shared["groups"][group]

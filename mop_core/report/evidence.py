@@ -17,7 +17,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from mop_core.report.results import StudyResults
-from mop_core.runs import structure_group, student_group, student_recipe, teacher_group
+from mop_core.runs import representation_group, student_group, student_recipe, teacher_group
 from mop_core.variants import Composed, Ranking, Sharing, SingleTask, Variant, Width
 
 Seeds = dict[int, float]  # training seed (or a group member's position) -> value
@@ -95,7 +95,7 @@ class Evidence:
         return teacher_group(self.level(task), actor)
 
     def structure(self, variant: Variant | None = None, loss: str = "mse", scope: str | None = None) -> str:
-        return structure_group(student_recipe(loss, variant), scope or self.pairing)
+        return representation_group(student_recipe(loss, variant), scope or self.pairing)
 
     @staticmethod
     def width(width: int) -> Variant:

@@ -23,7 +23,7 @@ from mop_core.runs import (
     TeacherRun,
     no_sharing_group,
     own_teacher,
-    structure_group,
+    representation_group,
     student_group,
     student_recipe,
 )
@@ -170,8 +170,8 @@ def tau_lines(results: StudyResults, levels: Sequence[str], sets: Sequence[TaskS
     for task_set in sets or task_sets(results):
         for level in levels:
             scope = task_set.scope(level)
-            labelled = [(label, groups.get(structure_group(student_recipe("mse", task_set.student_variant(variant)),
-                                                           scope)))
+            labelled = [(label, groups.get(representation_group(
+                student_recipe("mse", task_set.student_variant(variant)), scope)))
                         for variant, label in STUDENT_LABELS.items()]
             if not task_set.substitute:
                 labelled += [("no sharing (single-task students)", groups.get(no_sharing_group(level)))]

@@ -45,7 +45,7 @@ def measure_catalogue(catalogue: Catalogue, config: SharedComputationConfig, thr
     other (the no-sharing reference); write out/students/<name>.json and out/figures/<name>.png;
     return the metrics record (Table 6.1 per group: mean over its seeds, and per student) and the
     seconds taken (``seconds``, ``rollout_seconds``: the stage's timing record)."""
-    groups = {members[0].structure_group: members
+    groups = {members[0].representation_group: members
               for members in catalogue.student_groups().values() if not members[0].single_task}
     singles = catalogue.single_task_students()
     runs = [run for members in groups.values() for run in members]
