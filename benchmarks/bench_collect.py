@@ -26,15 +26,15 @@ from mop_core.agents.td3 import TD3, TD3Config
 from mop_core.config import from_mapping
 from mop_core.data import ReplayBuffer
 from mop_core.data.hdf5 import Dataset
-from mop_core.envs import VectorStep, VectorWalkerEnv, WalkerEnv
+from mop_core.learning.runtime import configure_compute, set_step_threads
 from mop_core.relabel import relabel_rewards
-from mop_core.runtime import configure_compute, set_step_threads
+from mop_core.walker.envs import VectorStep, VectorWalkerEnv, WalkerEnv
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def walkers_built_per_second(count: int = 20) -> tuple[float, float]:
-    from mop_core.envs import _suite
+    from mop_core.walker.envs import _suite
 
     def suite():
         for seed in range(count):

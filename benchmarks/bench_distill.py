@@ -32,12 +32,12 @@ from mop_core.config import from_mapping
 from mop_core.distill.checkpoint import student_policy
 from mop_core.distill.config import DistillConfig
 from mop_core.distill.distiller import Distiller, cumulative_weights, weighted_rows
+from mop_core.distill.ranking import RANKING_LOSSES
 from mop_core.distill.states import TaskStates, task_states, teacher_outputs
-from mop_core.nn import DeterministicActor
-from mop_core.ranking import RANKING_LOSSES
-from mop_core.rollout import episode_returns, policies_returns_and_states, policy_threads, returns_and_states
-from mop_core.runtime import configure_compute
-from mop_core.variants import Ranking
+from mop_core.experiment.variants import Ranking
+from mop_core.learning.nn import DeterministicActor
+from mop_core.learning.runtime import configure_compute
+from mop_core.walker.rollout import episode_returns, policies_returns_and_states, policy_threads, returns_and_states
 
 ROOT = Path(__file__).resolve().parents[1]
 STATES = 100_000  # per task (the quick profile's dataset size)

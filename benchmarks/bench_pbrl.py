@@ -36,8 +36,8 @@ from mop_core.agents.pbrl import PBRL, PBRLConfig
 from mop_core.agents.pbrl_group import PBRLGroup, stack_batches
 from mop_core.config import from_mapping
 from mop_core.data import Batch
-from mop_core.nn import EnsembleCritic, adam, per_member_forward
-from mop_core.runtime import configure_compute, set_threads
+from mop_core.learning.nn import EnsembleCritic, adam, per_member_forward
+from mop_core.learning.runtime import configure_compute, set_threads
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -1,4 +1,4 @@
-"""Training rates at a profile's network sizes on one device: what ``python -m mop_core.plan`` turns
+"""Training rates at a profile's network sizes on one device: what ``python -m mop_core.experiment.plan`` turns
 into the profile's cost.
 
 Measures in one process (after a warm-up; on CUDA every timed block ends with a synchronize):
@@ -11,7 +11,7 @@ Measures in one process (after a warm-up; on CUDA every timed block ends with a 
   R runs of 8 cost R / (8 * rate_8) seconds per step each;
 - control steps/s of ``eval.rollout_envs`` walkers stepped together under a batched student policy.
 
-Writes the numbers as JSON (``--out``) with the device's name; ``mop_core.plan`` reads that file.
+Writes the numbers as JSON (``--out``) with the device's name; ``mop_core.experiment.plan`` reads that file.
 
 Run: ``python benchmarks/bench_rates.py --profile profiles/thesis.yaml --device cuda --out rates.json``
 (``--quick`` times fewer updates: a smoke test).
@@ -38,10 +38,10 @@ from mop_core.distill.checkpoint import student_policy
 from mop_core.distill.distiller import Distiller
 from mop_core.distill.states import TaskStates
 from mop_core.distill.student import Student
-from mop_core.nn import EnsembleCritic
-from mop_core.rollout import episode_returns
-from mop_core.runtime import configure_compute, resolve_device
-from mop_core.timings import machine_facts
+from mop_core.learning.nn import EnsembleCritic
+from mop_core.learning.runtime import configure_compute, resolve_device
+from mop_core.storage.timings import machine_facts
+from mop_core.walker.rollout import episode_returns
 
 ROOT = Path(__file__).resolve().parents[1]
 GROUP_SIZES = (1, 8)

@@ -56,8 +56,8 @@ from mop_core.distill.config import DistillConfig
 from mop_core.distill.distiller import Distiller
 from mop_core.distill.states import task_states
 from mop_core.distill.student import StudentConfig
-from mop_core.nn import DeterministicActor, EnsembleCritic
-from mop_core.runtime import configure_compute
+from mop_core.learning.nn import DeterministicActor, EnsembleCritic
+from mop_core.learning.runtime import configure_compute
 
 ROOT = Path(__file__).resolve().parents[1]
 OBS, ACT = 24, 6

@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from mop_core.runtime import configure_compute
+from mop_core.learning.runtime import configure_compute
 from mop_core.shift.measures import classifier_test, knn_kl, split_half_null
 
 TARGET_SECONDS = 60.0

@@ -26,9 +26,9 @@ from timing import rate
 
 from mop_core.distill.distiller import Distiller
 from mop_core.distill.states import task_states
-from mop_core.nn import DeterministicActor
+from mop_core.learning.nn import DeterministicActor
+from mop_core.learning.runtime import configure_compute
 from mop_core.representations.measures import kendall_tau_b, per_state_tau_by_layer
-from mop_core.runtime import configure_compute
 
 ROOT = Path(__file__).resolve().parents[1]
 

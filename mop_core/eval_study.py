@@ -1,10 +1,10 @@
 """The eval stage's work: every policy of a catalogue rolled out online, summarised and compared.
 
-:func:`evaluate_study` runs the catalogue's jobs (:meth:`~mop_core.catalogue.Catalogue.eval_jobs`)
+:func:`evaluate_study` runs the catalogue's jobs (:meth:`~mop_core.experiment.catalogue.Catalogue.eval_jobs`)
 and returns, per task and policy group, the mean return with its 95% interval (unit and n said,
 :func:`mop_core.statistics.summarise_group`), each as a normalised score
 ``100 (R - R_random) / (R_expert - R_random)`` too (R_random measured by the collect stage, R_expert
-the published level of :mod:`mop_core.tasks`); each student's and baseline's ratio to the teachers it
+the published level of :mod:`mop_core.walker.tasks`); each student's and baseline's ratio to the teachers it
 is compared with; aggregates (IQM of normalised scores per group, probability of improvement of
 each student group over its teachers and over the other losses: stratified bootstrap); and the
 cross-task table (each task's deterministic teacher on every task's reward, thesis 6.4.5).
@@ -20,14 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
-from mop_core.artifacts import read_curve
-from mop_core.catalogue import Catalogue, Reference
 from mop_core.config import ConfigError
 from mop_core.evaluation import episode_seeds, run_jobs
-from mop_core.files import atomic_path, read_json, write_json
+from mop_core.experiment.catalogue import Catalogue, Reference
+from mop_core.experiment.runs import cross_group, is_cross_group, teacher_group
+from mop_core.experiment.study import EvalConfig
+from mop_core.learning.runtime import derive_seeds
 from mop_core.plots import learning_curves, returns_bar_chart
-from mop_core.runs import cross_group, is_cross_group, teacher_group
-from mop_core.runtime import derive_seeds
 from mop_core.statistics import (
     improvement_summary,
     iqm_summary,
@@ -36,9 +35,10 @@ from mop_core.statistics import (
     ratio_to_teacher,
     summarise_group,
 )
-from mop_core.study import EvalConfig
-from mop_core.tasks import get_task
-from mop_core.timings import per_second, write_timing
+from mop_core.storage.artifacts import read_curve
+from mop_core.storage.files import atomic_path, read_json, write_json
+from mop_core.storage.timings import per_second, write_timing
+from mop_core.walker.tasks import get_task
 
 AGGREGATE_NOTE = ("IQM: interquartile mean of normalised scores pooled over tasks; probability of improvement "
                   "P(X > Y): per task the share of (x, y) run pairs with x > y (ties 1/2), averaged over tasks; "
@@ -66,7 +66,7 @@ class StudyEvaluation:
 
 
 def normalisers(tasks, collect_metrics: Path) -> dict[str, dict]:
-    """Per task: R_random (measured by the collect stage) and R_expert (published, mop_core.tasks)."""
+    """Per task: R_random (measured by the collect stage) and R_expert (published, mop_core.walker.tasks)."""
     collect = read_json(collect_metrics)
     out = {}
     for task in tasks:
@@ -82,7 +82,7 @@ def substitute_normalisers(substitutes: dict[str, str], norms: dict, study_seed:
                            rollout_envs: int) -> dict[str, dict]:
     """Per substitute task (-> its base task, data_sharing.substitutes): R_random measured here, as
     many uniformly random episodes as collect ran for the base task (no collect run covers a
-    substitute), and R_expert published (mop_core.tasks)."""
+    substitute), and R_expert published (mop_core.walker.tasks)."""
     from mop_core.collect import random_returns
 
     out = {}

@@ -4,7 +4,7 @@ A job is one policy rolled out on one task: ``episodes`` episodes, all of a job'
 together (``rollout_envs`` at a time); jobs run in ``workers`` single-threaded processes. Every
 policy sees the same episode seeds (common random numbers), so differences between policies are not
 differences between start states. Which jobs a study has is the catalogue's business
-(:meth:`mop_core.catalogue.Catalogue.eval_jobs`); their confidence intervals and aggregates are
+(:meth:`mop_core.experiment.catalogue.Catalogue.eval_jobs`); their confidence intervals and aggregates are
 :mod:`mop_core.statistics`'; :mod:`mop_core.eval_study` puts them together.
 """
 
@@ -14,11 +14,11 @@ from typing import Sequence
 
 import numpy as np
 
-from mop_core.catalogue import Job
+from mop_core.experiment.catalogue import Job
+from mop_core.experiment.study import GAUSSIAN_ACTIONS, EvalConfig  # noqa: F401  (GAUSSIAN_ACTIONS: the eval stage's vocabulary)
+from mop_core.learning.runtime import derive_seeds, parallel_map
 from mop_core.policies import load_policy
-from mop_core.rollout import episode_returns
-from mop_core.runtime import derive_seeds, parallel_map
-from mop_core.study import GAUSSIAN_ACTIONS, EvalConfig  # noqa: F401  (GAUSSIAN_ACTIONS: the eval stage's vocabulary)
+from mop_core.walker.rollout import episode_returns
 
 
 def episode_seeds(study_seed: int, config: EvalConfig) -> list[int]:

@@ -1,12 +1,12 @@
 """Gymnasium environments of the study's walker tasks, registered as ``mop/walker-<task>-v0``.
 
 What Minari, d3rlpy and every Gymnasium-based offline-RL library evaluate through: an env id. Each
-env is the study's own :class:`~mop_core.envs.WalkerEnv` (dm_control's walker, the task's reward
+env is the study's own :class:`~mop_core.walker.envs.WalkerEnv` (dm_control's walker, the task's reward
 computed as the study computes it) behind the Gymnasium API, so a policy trained on a mop dataset
 sees in it exactly what the dataset holds:
 
 - observation: the datasets' 24 floats in their order (orientations 14, torso height 1, velocity 9;
-  :func:`mop_core.envs.flatten_observation`), float32 as the datasets store them; shimmy's
+  :func:`mop_core.walker.envs.flatten_observation`), float32 as the datasets store them; shimmy's
   ``dm_control/walker-*`` orders them (height, orientations, velocity) instead;
 - action: 6 torques in [-1, 1] (float32 space; passed to MuJoCo as float64, as the study does);
 - reward: the task's reward of the step (``stand_still``: stand's times the stillness factor);
@@ -17,7 +17,7 @@ sees in it exactly what the dataset holds:
   ``horizontal_velocity``: the datasets' ``infos/*``, from which any task's reward is computed) and
   ``physics``, qpos+qvel after the step (the datasets' ``infos/next_physics``).
 
-Importing this module registers every task of the registry (:data:`mop_core.tasks.TASKS`, so a task
+Importing this module registers every task of the registry (:data:`mop_core.walker.tasks.TASKS`, so a task
 added there gets an env too) with a string entry point, so an env spec is serialisable (Minari
 stores it and ``recover_environment`` rebuilds the env). Without the import, Gymnasium's
 ``module:id`` form imports it: ``gymnasium.make("mop_core.gym_envs:mop/walker-walk-v0")``.
@@ -31,8 +31,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from mop_core.envs import ACT_DIM, EPISODE_LENGTH, OBS_DIM, WalkerEnv
-from mop_core.tasks import REWARD_FEATURES, TASKS, get_task
+from mop_core.walker.envs import ACT_DIM, EPISODE_LENGTH, OBS_DIM, WalkerEnv
+from mop_core.walker.tasks import REWARD_FEATURES, TASKS, get_task
 
 NAMESPACE = "mop"
 ENTRY_POINT = "mop_core.gym_envs:WalkerGymEnv"

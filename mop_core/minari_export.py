@@ -41,9 +41,9 @@ import numpy as np
 
 from mop_core.config import ConfigError, InputFileError
 from mop_core.data.hdf5 import Dataset, read_dataset, read_relabel
-from mop_core.files import read_json
-from mop_core.layout import DATA, RESULTS, relabel_file
-from mop_core.tasks import REWARD_FEATURES
+from mop_core.storage.files import read_json
+from mop_core.storage.layout import DATA, RESULTS, relabel_file
+from mop_core.walker.tasks import REWARD_FEATURES
 
 NAMESPACE = "mop"
 DEFAULT_OUT = DATA / "minari"

@@ -10,7 +10,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from mop_core.files import atomic_path  # noqa: E402
+from mop_core.storage.files import atomic_path  # noqa: E402
 
 REFERENCE_DASHES = ["--", ":", "-.", (0, (5, 1, 1, 1, 1, 1))]  # band_curves' reference lines, in order
 

@@ -4,7 +4,7 @@ Every checkpoint the stages write carries ``kind`` (what wrote it); the package 
 written with are in the run's timing record (results/timings/), not in the checkpoint, so that the
 same weights are the same bytes on any machine. :func:`load_policy` reads the kind and rebuilds the
 acting network the same way for all of them; a Policy maps observations ``[K, 24]`` to actions
-``[K, 6]`` (float64), as the rollouts (:mod:`mop_core.rollout`) step them. Gaussian actors act by
+``[K, 6]`` (float64), as the rollouts (:mod:`mop_core.walker.rollout`) step them. Gaussian actors act by
 their mean unless a student is given a ``sample_seed``.
 """
 
@@ -14,11 +14,11 @@ from pathlib import Path
 from typing import Callable
 
 from mop_core.agents.td3 import actor_from_checkpoint
-from mop_core.artifacts import read_torch_file
 from mop_core.collect import BEHAVIOUR_KIND
 from mop_core.config import InputFileError
 from mop_core.distill.checkpoint import STUDENT_KIND, student_from_checkpoint
-from mop_core.nn import NumpyPolicy, numpy_policy
+from mop_core.learning.nn import NumpyPolicy, numpy_policy
+from mop_core.storage.artifacts import read_torch_file
 from mop_core.teachers import MULTITASK_KIND, TEACHER_KIND, multitask_from_checkpoint, teacher_from_checkpoint
 
 Policy = NumpyPolicy

@@ -2,9 +2,9 @@
 
 D_{j->i} is task j's dataset with its rewards recomputed under task i's reward function. Rewards
 depend only on the next state, so they are a function of the stored reward features
-(:func:`mop_core.tasks.reward`, vectorised, millions of transitions per second) or, as the
+(:func:`mop_core.walker.tasks.reward`, vectorised, millions of transitions per second) or, as the
 reference path, of the stored physics state replayed through MuJoCo and dm_control's own
-``get_reward`` (:func:`mop_core.envs.physics_replay_rewards`). Both agree with dm_control to
+``get_reward`` (:func:`mop_core.walker.envs.physics_replay_rewards`). Both agree with dm_control to
 floating-point precision; the relabel file stores float64 rewards beside, not inside, the dataset.
 """
 
@@ -21,8 +21,8 @@ import torch
 from mop_core.config import require
 from mop_core.data.buffer import TransitionTensors
 from mop_core.data.hdf5 import Dataset, DatasetError, read_dataset, read_relabel, write_dataset, write_relabel
-from mop_core.envs import physics_replay_rewards
-from mop_core.tasks import check_task_list, reward
+from mop_core.walker.envs import physics_replay_rewards
+from mop_core.walker.tasks import check_task_list, reward
 
 METHODS = ("vectorised", "physics")
 

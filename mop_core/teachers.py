@@ -20,27 +20,27 @@ import torch
 from mop_core.agents.pbrl import PBRLConfig, make_actor
 from mop_core.agents.pbrl_group import PBRLGroup, stack_batches
 from mop_core.agents.pbrl_multitask import MultiTaskPBRL
-from mop_core.artifacts import load_checkpoint, state_sha256
 from mop_core.config import ConfigError, InputFileError, from_mapping, require, to_dict
 from mop_core.data.buffer import TransitionTensors
 from mop_core.data.hdf5 import read_dataset, read_json, read_relabel
-from mop_core.envs import ACT_DIM, OBS_DIM
-from mop_core.nn import EnsembleCritic, numpy_policy
-from mop_core.rollout import episode_returns, trajectory_returns
-from mop_core.runs import TeacherRun, relabelled_teacher_runs, sharing_teacher_entry, teacher_entry
-from mop_core.runtime import derive_seeds
-from mop_core.schedule import TrainSchedule
-from mop_core.step_metrics import run_key, split_runs
-from mop_core.study import StudyConfig, section, sharing_grid, study_config, teacher_grid
-from mop_core.tasks import check_task_list
-from mop_core.timings import per_second, write_timing
-from mop_core.training import (
+from mop_core.experiment.runs import TeacherRun, relabelled_teacher_runs, sharing_teacher_entry, teacher_entry
+from mop_core.experiment.study import StudyConfig, section, sharing_grid, study_config, teacher_grid
+from mop_core.learning.nn import EnsembleCritic, numpy_policy
+from mop_core.learning.runtime import derive_seeds
+from mop_core.learning.schedule import TrainSchedule
+from mop_core.learning.step_metrics import run_key, split_runs
+from mop_core.learning.training import (
     RunPaths,
     finish_run,
     returns_summary,
     run_fingerprint,
     train_loop,
 )
+from mop_core.storage.artifacts import load_checkpoint, state_sha256
+from mop_core.storage.timings import per_second, write_timing
+from mop_core.walker.envs import ACT_DIM, OBS_DIM
+from mop_core.walker.rollout import episode_returns, trajectory_returns
+from mop_core.walker.tasks import check_task_list
 
 TEACHER_KIND = "pbrl_teacher"
 MULTITASK_KIND = "pbrl_multitask"
@@ -403,8 +403,9 @@ def multitask_from_checkpoint(payload: dict) -> MultiTaskPolicy:
 def teacher_entries(params: Mapping[str, Any], sharing: bool = False) -> dict[str, list[TeacherRun]]:
     """train_teachers entry (``<level>-<actor>``: every study task and train_teachers seed) -> the teachers
     it trains as one group; ``sharing``: the train_shared_teachers entries (``<kind>-<level>-deterministic``,
-    seed distill.teacher_seed: mop_core.runs.relabelled_teacher_runs). The catalogue's ``teachers`` and
-    ``relabelled_teachers`` (mop_core.catalogue, tested equal), from the study, train_teachers and data_sharing
+    seed distill.teacher_seed: mop_core.experiment.runs.relabelled_teacher_runs). The catalogue's ``teachers`` and
+    ``relabelled_teachers`` (mop_core.experiment.catalogue, tested equal), from the study, train_teachers and
+    data_sharing
     sections alone: a teacher stage neither reads the student sections nor depends on the catalogue's code."""
     study = study_config(params)
     if sharing:

@@ -25,7 +25,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from mop_core.timings import stage_time_table  # noqa: E402
+from mop_core.storage.timings import stage_time_table  # noqa: E402
 
 
 def recorded_outputs(lock: dict) -> dict[str, str]:

@@ -17,10 +17,10 @@ from common import load_params, run_stage
 
 from mop_core.collect import collect_configs, collect_metrics, collect_tasks, collect_timing
 from mop_core.data import write_json
-from mop_core.layout import COLLECT_METRICS, collect_paths, timing_file
-from mop_core.runtime import progress_enabled, resolve_device
-from mop_core.study import study_config
-from mop_core.timings import write_timing
+from mop_core.experiment.study import study_config
+from mop_core.learning.runtime import progress_enabled, resolve_device
+from mop_core.storage.layout import COLLECT_METRICS, collect_paths, timing_file
+from mop_core.storage.timings import write_timing
 
 
 def main() -> None:

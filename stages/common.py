@@ -1,7 +1,8 @@
 """What every stage script shares: reading params.yaml, checking inputs, the run lock, exit codes.
 
 Stage scripts are the only code that reads params.yaml; mop_core receives the parsed mapping
-(mop_core.study types the grid, mop_core.catalogue lists the study's runs, mop_core.layout places
+(mop_core.experiment.study types the grid, mop_core.experiment.catalogue lists the study's runs,
+mop_core.storage.layout places
 files, each learner's module types its own section).
 """
 
@@ -17,9 +18,9 @@ from typing import Any
 import yaml
 
 from mop_core.config import ConfigError, InputFileError, OutputFileError
-from mop_core.layout import DATA
-from mop_core.runtime import TrainingDivergedError, die_with_parent
-from mop_core.study import StudyConfig, check_sections
+from mop_core.experiment.study import StudyConfig, check_sections
+from mop_core.learning.runtime import TrainingDivergedError, die_with_parent
+from mop_core.storage.layout import DATA
 
 PARAMS = Path("params.yaml")
 LOCKS = DATA / "locks"  # run locks (not a DVC output; ignored by git)

@@ -22,11 +22,11 @@ import time
 from common import load_params, require_inputs, run_stage
 
 from mop_core.data import write_json
-from mop_core.layout import RESULTS, composed_file, timing_file
-from mop_core.runtime import parallel_map, progress_enabled
+from mop_core.experiment.study import shift_grid, study_config
+from mop_core.learning.runtime import parallel_map, progress_enabled
 from mop_core.shift.compose import compose_config, compose_jobs, compose_teacher_data, composing_teachers, summary_lines
-from mop_core.study import shift_grid, study_config
-from mop_core.timings import write_timing
+from mop_core.storage.layout import RESULTS, composed_file, timing_file
+from mop_core.storage.timings import write_timing
 
 COMPOSE_METRICS = RESULTS / "compose" / "metrics.json"
 

@@ -2,8 +2,8 @@
 
     python stages/distill.py --entry mse-w16-medium [--seeds 0 2]   (a subset of distill.seeds)
 
-The catalogue names the entries and what each student learns from (mop_core.variants: its change); the
-inputs are checked against data/student_inputs/<entry>.json. Files per seed under <entry>/: mop_core.layout.
+The catalogue names the entries and what each student learns from (mop_core.experiment.variants: its change); the
+inputs are checked against data/student_inputs/<entry>.json. Files per seed under <entry>/: mop_core.storage.layout.
 """
 
 from __future__ import annotations
@@ -12,14 +12,14 @@ import argparse
 
 from common import load_params, require_inputs, run_stage
 
-from mop_core.catalogue import LOSS_ACTORS, build_catalogue
 from mop_core.config import keys_under, require
 from mop_core.data import read_json
 from mop_core.distill.config import distill_config
 from mop_core.distill.run import StudentSources, check_student_files, distill_students, finish_students
-from mop_core.layout import student_inputs_file
-from mop_core.runtime import configure_compute, progress_enabled, resolve_device
-from mop_core.study import distill_grid, study_config
+from mop_core.experiment.catalogue import LOSS_ACTORS, build_catalogue
+from mop_core.experiment.study import distill_grid, study_config
+from mop_core.learning.runtime import configure_compute, progress_enabled, resolve_device
+from mop_core.storage.layout import student_inputs_file
 from mop_core.teachers import teacher_config
 
 

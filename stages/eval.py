@@ -3,7 +3,7 @@
     python stages/eval.py
 
 Evaluates, each on ``eval.episodes`` episodes per task (the same episode seeds for every policy),
-every policy of the study's catalogue (mop_core/catalogue.py) on the tasks it was trained for: the
+every policy of the study's catalogue (mop_core/experiment/catalogue.py) on the tasks it was trained for: the
 behaviour snapshots, the teachers, the naive multi-task baseline and every student; and each task's
 deterministic teacher on every other task's reward (thesis 6.4.5). Returns also as normalised scores;
 IQM and probabilities of improvement on them (mop_core/eval_study.py). A data_sharing substitute task
@@ -19,7 +19,6 @@ from __future__ import annotations
 
 from common import load_params, require_inputs, run_stage
 
-from mop_core.catalogue import build_catalogue
 from mop_core.eval_study import (
     eval_metrics,
     evaluate_study,
@@ -29,10 +28,11 @@ from mop_core.eval_study import (
     write_eval_outputs,
     write_eval_timing,
 )
-from mop_core.layout import COLLECT_METRICS, stage_dir, timing_file
-from mop_core.runtime import progress_enabled
-from mop_core.study import EvalConfig, study_config, typed_section
-from mop_core.tasks import substitute_base
+from mop_core.experiment.catalogue import build_catalogue
+from mop_core.experiment.study import EvalConfig, study_config, typed_section
+from mop_core.learning.runtime import progress_enabled
+from mop_core.storage.layout import COLLECT_METRICS, stage_dir, timing_file
+from mop_core.walker.tasks import substitute_base
 
 
 def main() -> None:

@@ -16,11 +16,11 @@ from common import load_params, run_stage
 
 from mop_core.config import ConfigError
 from mop_core.data import write_json
-from mop_core.layout import dataset_file, relabel_file, stage_dir, timing_file
+from mop_core.experiment.study import sharing_grid, study_config, typed_section
+from mop_core.learning.runtime import configure_compute
 from mop_core.relabel import RelabelConfig, relabel_dataset
-from mop_core.runtime import configure_compute
-from mop_core.study import sharing_grid, study_config, typed_section
-from mop_core.timings import per_second, write_timing
+from mop_core.storage.layout import dataset_file, relabel_file, stage_dir, timing_file
+from mop_core.storage.timings import per_second, write_timing
 
 
 def main() -> None:

@@ -16,9 +16,8 @@ from pathlib import Path
 
 from common import load_params, run_stage
 
-from mop_core.catalogue import build_catalogue
 from mop_core.data import atomic_path, write_json
-from mop_core.layout import HEADLINE_METRICS, RESULTS
+from mop_core.experiment.catalogue import build_catalogue
 from mop_core.report.common_structure import structure_section
 from mop_core.report.document import render_report
 from mop_core.report.evidence import Evidence
@@ -27,6 +26,7 @@ from mop_core.report.load import load_results, read_optional
 from mop_core.report.sharing import sharing_section
 from mop_core.report.shift import shift_section
 from mop_core.report.verdict_section import decide, verdict_record, verdict_section
+from mop_core.storage.layout import HEADLINE_METRICS, RESULTS
 
 REPORT = RESULTS / "report.md"
 FIGURES = RESULTS / "report"

@@ -19,15 +19,15 @@ from __future__ import annotations
 
 from common import load_params, require_inputs, run_stage
 
-from mop_core.catalogue import build_catalogue
 from mop_core.config import require
 from mop_core.data import write_json
-from mop_core.layout import stage_dir, timing_file
+from mop_core.experiment.catalogue import build_catalogue
+from mop_core.experiment.study import study_config
+from mop_core.learning.runtime import progress_enabled
 from mop_core.representations.shared_computation import shared_computation_config
 from mop_core.representations.study import measure_catalogue, print_summary, tau_during_training_figure
-from mop_core.runtime import progress_enabled
-from mop_core.study import study_config
-from mop_core.timings import write_timing
+from mop_core.storage.layout import stage_dir, timing_file
+from mop_core.storage.timings import write_timing
 
 
 def main() -> None:

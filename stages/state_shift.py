@@ -18,13 +18,13 @@ import time
 
 from common import load_params, require_inputs, run_stage
 
-from mop_core.catalogue import build_catalogue
 from mop_core.data import read_json, write_json
 from mop_core.eval_study import normalisers
-from mop_core.layout import COLLECT_METRICS, RESULTS, stage_dir, timing_file
-from mop_core.runtime import configure_compute
+from mop_core.experiment.catalogue import build_catalogue
+from mop_core.learning.runtime import configure_compute
 from mop_core.shift.results import clear_figures, shift_stage, write_figures
-from mop_core.timings import write_timing
+from mop_core.storage.layout import COLLECT_METRICS, RESULTS, stage_dir, timing_file
+from mop_core.storage.timings import write_timing
 
 OUT = RESULTS / "state_shift"
 EVAL_METRICS = stage_dir("eval") / "metrics.json"  # the students' and teachers' returns

@@ -2,7 +2,7 @@
 
     python stages/student_inputs.py
 
-Writes data/student_inputs/<loss>-<pairing>.json (mop_core.catalogue.student_inputs): the SHA-256 of
+Writes data/student_inputs/<loss>-<pairing>.json (mop_core.experiment.catalogue.student_inputs): the SHA-256 of
 each teacher checkpoint the entry's students (every seed) learn from and the content hash of each
 dataset their states come from. Each ``distill`` entry depends on its own record instead of on every
 teacher, so a retrained teacher reruns only its students (this stage takes seconds; a record whose
@@ -13,9 +13,9 @@ from __future__ import annotations
 
 from common import load_params, require_inputs, run_stage
 
-from mop_core.catalogue import build_catalogue, student_inputs
 from mop_core.data import write_json
-from mop_core.layout import student_inputs_file
+from mop_core.experiment.catalogue import build_catalogue, student_inputs
+from mop_core.storage.layout import student_inputs_file
 
 
 def main() -> None:

@@ -25,9 +25,9 @@ from common import check_level_and_seed, load_params, require_inputs, run_stage
 
 from mop_core.agents.pbrl import ACTOR_TYPES
 from mop_core.config import keys_under
-from mop_core.runs import SHARING_KINDS
-from mop_core.runtime import configure_compute, progress_enabled, resolve_device
-from mop_core.study import study_config, teacher_grid
+from mop_core.experiment.runs import SHARING_KINDS
+from mop_core.experiment.study import study_config, teacher_grid
+from mop_core.learning.runtime import configure_compute, progress_enabled, resolve_device
 from mop_core.teachers import TeacherJob, entry_runs, group_lines, teacher_config, train_teacher_group
 
 

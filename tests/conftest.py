@@ -68,10 +68,10 @@ def tiny_teachers(tiny_collected, tmp_path_factory):
     on D_{stand->walk} (expert); deterministic and Gaussian. ``{(task, actor): checkpoint}`` and the
     dataset of each task."""
     from mop_core.agents.pbrl import PBRLConfig
+    from mop_core.learning.schedule import TrainSchedule
+    from mop_core.learning.training import RunPaths
     from mop_core.relabel import RelabelConfig, relabel_dataset
-    from mop_core.schedule import TrainSchedule
     from mop_core.teachers import DataSource, TeacherConfig, train_teacher
-    from mop_core.training import RunPaths
 
     root, _ = tiny_collected
     out = tmp_path_factory.mktemp("teachers")

@@ -1,4 +1,4 @@
-"""mop_core/artifacts.py: checkpoints written atomically and read back with errors that name the file,
+"""mop_core/storage/artifacts.py: checkpoints written atomically and read back with errors that name the file,
 content hashes, and learning curves as TSV."""
 
 from __future__ import annotations
@@ -9,7 +9,8 @@ import pickle
 import pytest
 import torch
 
-from mop_core.artifacts import (
+from mop_core.config import InputFileError
+from mop_core.storage.artifacts import (
     file_sha256,
     load_checkpoint,
     read_torch_file,
@@ -17,7 +18,6 @@ from mop_core.artifacts import (
     state_sha256,
     write_curve,
 )
-from mop_core.config import InputFileError
 
 
 def _leftovers(directory):

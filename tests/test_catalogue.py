@@ -1,4 +1,5 @@
-"""mop_core/catalogue.py and mop_core/runs.py: every run of the tiny study, in the stages' order, what each
+"""mop_core/experiment/catalogue.py and mop_core/experiment/runs.py: every run of the tiny study, in the stages'
+order, what each
 student learns from, which policies the eval stage rolls out where, and what each group is compared with."""
 
 from __future__ import annotations
@@ -10,7 +11,8 @@ from pathlib import Path
 import h5py
 import pytest
 
-from mop_core.catalogue import (
+from mop_core.config import ConfigError, InputFileError
+from mop_core.experiment.catalogue import (
     Job,
     Reference,
     build_catalogue,
@@ -18,8 +20,7 @@ from mop_core.catalogue import (
     make_student,
     student_inputs,
 )
-from mop_core.config import ConfigError, InputFileError
-from mop_core.runs import (
+from mop_core.experiment.runs import (
     BehaviourRun,
     MultitaskRun,
     StudentRun,
@@ -29,8 +30,8 @@ from mop_core.runs import (
     no_sharing_group,
     representation_group,
 )
-from mop_core.runtime import derive_seeds
-from mop_core.variants import Ranking, Sharing, SingleTask
+from mop_core.experiment.variants import Ranking, Sharing, SingleTask
+from mop_core.learning.runtime import derive_seeds
 
 TASKS = ("stand", "walk")
 

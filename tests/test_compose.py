@@ -9,11 +9,11 @@ import copy
 import numpy as np
 import pytest
 
-from mop_core.catalogue import build_catalogue
 from mop_core.config import ConfigError
 from mop_core.data import read_dataset
 from mop_core.distill.states import episode_rows, offline_states
-from mop_core.layout import composed_file
+from mop_core.experiment.catalogue import build_catalogue
+from mop_core.experiment.study import shift_grid, study_config
 from mop_core.shift.compose import (
     REFERENCE,
     THESIS_COMPOSITIONS,
@@ -27,7 +27,7 @@ from mop_core.shift.compose import (
     random_policy,
     summary_lines,
 )
-from mop_core.study import shift_grid, study_config
+from mop_core.storage.layout import composed_file
 
 T = 20  # control steps per episode in these tests
 

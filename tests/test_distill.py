@@ -20,11 +20,11 @@ from mop_core.distill.losses import gaussian_kl_per_state, mse_per_state, q_per_
 from mop_core.distill.run import StudentSources, distill_student, distill_students, union_states
 from mop_core.distill.states import TaskStates, offline_states, online_states, q_switch_states, task_states
 from mop_core.distill.student import Student, StudentConfig, StudentGroup
-from mop_core.envs import WalkerEnv
-from mop_core.nn import DeterministicActor, EnsembleCritic, GaussianActor
-from mop_core.schedule import TrainSchedule
+from mop_core.learning.nn import DeterministicActor, EnsembleCritic, GaussianActor
+from mop_core.learning.schedule import TrainSchedule
+from mop_core.learning.training import RunPaths
 from mop_core.teachers import Teacher, load_teacher
-from mop_core.training import RunPaths
+from mop_core.walker.envs import WalkerEnv
 
 TINY = StudentConfig(hidden_sizes=(16, 16))
 

@@ -15,12 +15,12 @@ import pytest
 
 from mop_core.config import InputFileError
 from mop_core.data import read_dataset, read_relabel
-from mop_core.envs import WalkerEnv
 from mop_core.gym_envs import ENV_IDS, WalkerGymEnv, env_id
 from mop_core.relabel import RelabelConfig, relabel_dataset
-from mop_core.rollout import episode_returns
 from mop_core.statistics import normalised_score
-from mop_core.tasks import REWARD_FEATURES, TASKS
+from mop_core.walker.envs import WalkerEnv
+from mop_core.walker.rollout import episode_returns
+from mop_core.walker.tasks import REWARD_FEATURES, TASKS
 
 NORMALISATION = {"stand": {"random_return": 130.5, "expert_return": 986.8},
                  "walk": {"random_return": 32.6, "expert_return": 980.0}}

@@ -1,4 +1,4 @@
-"""mop_core/envs.py: seeded walker environments with flat observations, a time-out at exactly
+"""mop_core/walker/envs.py: seeded walker environments with flat observations, a time-out at exactly
 ``episode_length`` steps, and K of them stepped together as one batch."""
 
 from __future__ import annotations
@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from mop_core.config import ConfigError
-from mop_core.envs import (
+from mop_core.learning.runtime import set_step_threads
+from mop_core.walker.envs import (
     ACT_DIM,
     OBS_DIM,
     PHYSICS_DIM,
@@ -18,8 +19,7 @@ from mop_core.envs import (
     flatten_observation,
     physics_replay_rewards,
 )
-from mop_core.runtime import set_step_threads
-from mop_core.tasks import get_task
+from mop_core.walker.tasks import get_task
 
 
 def _actions(steps: int, k: int, seed: int = 0) -> np.ndarray:
@@ -176,7 +176,7 @@ def test_a_reused_walker_starts_the_episode_a_fresh_one_of_its_seed_starts():
 def test_a_walker_built_from_the_template_is_the_suites_own_env(task):
     """WalkerEnv builds dm_control's walker from a per-task template (the compiled model shared, data
     and task its own): episodes, rewards and physics equal an env ``suite.load`` builds, bit for bit."""
-    from mop_core.envs import _suite
+    from mop_core.walker.envs import _suite
 
     actions = _actions(60, 1, 11)[:, 0]
     first, second = WalkerEnv(task, 7, 60), WalkerEnv(task, 8, 60)

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from mop_core.catalogue import Job
 from mop_core.config import ConfigError, InputFileError
 from mop_core.evaluation import episode_seeds, run_jobs
+from mop_core.experiment.catalogue import Job
+from mop_core.experiment.study import EvalConfig
 from mop_core.policies import load_policy
-from mop_core.rollout import episode_returns
 from mop_core.statistics import (
     confidence_interval,
     improvement_summary,
@@ -20,8 +20,8 @@ from mop_core.statistics import (
     ratio_to_teacher,
     summarise_group,
 )
-from mop_core.study import EvalConfig
 from mop_core.teachers import load_teacher
+from mop_core.walker.rollout import episode_returns
 
 
 def test_confidence_interval_on_known_data():
@@ -170,8 +170,8 @@ def test_a_teacher_groups_iqm_pools_the_studys_tasks_and_a_student_groups_all_of
     """A substitute's teachers share their kind's group name (stand_still's own teacher, on stand's data, is
     in teacher_from_stand_..., with walk's OQS teacher): their IQM keeps to the study's tasks; the substitute
     set's students pool theirs."""
-    from mop_core.catalogue import build_catalogue
     from mop_core.eval_study import iqm_tasks
+    from mop_core.experiment.catalogue import build_catalogue
 
     catalogue = build_catalogue(tiny_params)
     tasks = ["walk", "stand_still"]

@@ -18,13 +18,13 @@ import pytest
 import torch
 from conftest import ROOT
 
-from mop_core.artifacts import load_checkpoint, read_curve, save_checkpoint
 from mop_core.config import InputFileError, OutputFileError
 from mop_core.data import DatasetError, read_dataset, read_dataset_attrs, read_json, write_json
+from mop_core.learning.runtime import TrainingDivergedError
+from mop_core.learning.schedule import TrainSchedule
+from mop_core.learning.training import RunPaths, train_loop
 from mop_core.policies import load_policy
-from mop_core.runtime import TrainingDivergedError
-from mop_core.schedule import TrainSchedule
-from mop_core.training import RunPaths, train_loop
+from mop_core.storage.artifacts import load_checkpoint, read_curve, save_checkpoint
 
 
 # ---- damaged files name themselves ----------------------------------------------------------------
@@ -297,7 +297,7 @@ def test_killing_a_stage_kills_its_workers_and_killing_dvc_kills_the_stage(tmp_p
         import sys, common
         sys.path.insert(0, %r)
         from test_faults import sleepy_job
-        from mop_core.runtime import parallel_map
+        from mop_core.learning.runtime import parallel_map
         common.run_stage(lambda: parallel_map(sleepy_job, [(60,), (60,)], 2, "jobs"))
     """ % str(ROOT / "tests"), tmp_path)
     workers = [int(stage.stdout.readline()) for _ in range(2)]

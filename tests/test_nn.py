@@ -6,7 +6,7 @@ import pytest
 import torch
 from torch import nn
 
-from mop_core.nn import (
+from mop_core.learning.nn import (
     EnsembleCritic,
     EnsembleLayerNorm,
     EnsembleLinear,

@@ -1,4 +1,4 @@
-"""The whole params file is checked before any compute (mop_core/study_params.py): every bad value
+"""The whole params file is checked before any compute (mop_core/experiment/study_params.py): every bad value
 below was accepted silently before issue 12, each now fails with one line naming its key."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import pytest
 from conftest import ROOT
 
 from mop_core.config import ConfigError
-from mop_core.study_params import check_params
+from mop_core.experiment.study_params import check_params
 
 
 def _set(params: dict, key: str, value) -> dict:
@@ -150,10 +150,10 @@ def test_library_errors_are_reported_under_their_section(tiny_collected, tmp_pat
     the params key the user edits."""
     from mop_core.agents.pbrl import PBRLConfig
     from mop_core.config import keys_under
+    from mop_core.learning.schedule import TrainSchedule
+    from mop_core.learning.training import RunPaths
     from mop_core.relabel import RelabelConfig, relabel_dataset
-    from mop_core.schedule import TrainSchedule
     from mop_core.teachers import DataSource, TeacherConfig, train_teacher
-    from mop_core.training import RunPaths
 
     root, _ = tiny_collected
     dataset, relabel = root / "datasets" / "stand-medium.hdf5", tmp_path / "relabel.hdf5"

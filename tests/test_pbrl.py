@@ -23,7 +23,7 @@ from mop_core.agents.pbrl import (
 from mop_core.agents.pbrl_multitask import MultiTaskPBRL
 from mop_core.config import ConfigError
 from mop_core.data import Batch
-from mop_core.nn import GaussianActor, bounded_log_std, with_task_id
+from mop_core.learning.nn import GaussianActor, bounded_log_std, with_task_id
 
 CONFIG = PBRLConfig(hidden_sizes=(16, 16), ensemble_size=4, batch_size=8, ood_actions=2, policy_delay=2,
                     learning_rate=1e-3)

@@ -9,7 +9,7 @@ import mop_core.agents.pbrl_group as pbrl_group
 from mop_core.agents.pbrl import PBRL, PBRLConfig
 from mop_core.agents.pbrl_group import PBRLGroup, stack_batches
 from mop_core.data.buffer import Batch
-from mop_core.nn import stack_networks
+from mop_core.learning.nn import stack_networks
 
 OBS, ACT = 7, 3
 SEEDS = [3, 7, 11]

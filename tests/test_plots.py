@@ -9,7 +9,6 @@ import matplotlib.pyplot as plt
 import pytest
 
 from mop_core import plots
-from mop_core.artifacts import read_curve, write_curve
 from mop_core.config import InputFileError
 from mop_core.plots import (
     band_curves,
@@ -21,6 +20,7 @@ from mop_core.plots import (
 )
 from mop_core.report.common_structure import comparison
 from mop_core.report.results import Run, StudyResults
+from mop_core.storage.artifacts import read_curve, write_curve
 
 PNG = b"\x89PNG\r\n\x1a\n"
 CURVES = {"teacher": [{"step": "10", "return_mean_stand": "1.5", "tau_layer1": "0.2"},

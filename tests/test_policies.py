@@ -9,16 +9,16 @@ import torch
 
 from mop_core.agents.pbrl import PBRLConfig, make_actor
 from mop_core.agents.td3 import TD3Config
-from mop_core.artifacts import save_checkpoint, state_sha256
 from mop_core.collect import BEHAVIOUR_KIND
 from mop_core.config import InputFileError, to_dict
 from mop_core.distill.checkpoint import STUDENT_KIND
 from mop_core.distill.config import DistillConfig
 from mop_core.distill.student import Student, StudentConfig
-from mop_core.nn import DeterministicActor, EnsembleCritic, with_task_id
+from mop_core.learning.nn import DeterministicActor, EnsembleCritic, with_task_id
+from mop_core.learning.training import RESUME_KIND
 from mop_core.policies import POLICY_KINDS, TASK_CONDITIONED, checkpoint_kind, load_policy
+from mop_core.storage.artifacts import save_checkpoint, state_sha256
 from mop_core.teachers import MULTITASK_KIND, TEACHER_KIND
-from mop_core.training import RESUME_KIND
 
 TASKS = ["stand", "walk"]
 HIDDEN = (8, 8)
@@ -165,7 +165,7 @@ def test_a_checkpoint_of_another_kind_is_refused_naming_the_file(tmp_path):
 def test_the_checkpoints_the_stages_write_load(tiny_collected, tiny_teachers):
     """The files collect_task and train_teacher write, not hand-made ones: the loader keeps up with the writers."""
     from mop_core.agents.td3 import actor_from_checkpoint
-    from mop_core.artifacts import load_checkpoint
+    from mop_core.storage.artifacts import load_checkpoint
     from mop_core.teachers import load_teacher
 
     root, _ = tiny_collected

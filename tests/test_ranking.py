@@ -14,10 +14,7 @@ from scipy.stats import kendalltau
 from mop_core.config import ConfigError
 from mop_core.distill.config import DistillConfig, RankingConfig
 from mop_core.distill.distiller import Distiller
-from mop_core.distill.states import task_states
-from mop_core.distill.student import Student, StudentConfig, StudentGroup
-from mop_core.nn import DeterministicActor, with_task_id
-from mop_core.ranking import (
+from mop_core.distill.ranking import (
     RANKING_LOSSES,
     approx_ndcg,
     cross_task_ranking,
@@ -25,8 +22,11 @@ from mop_core.ranking import (
     pairwise_logistic,
     ranking_loss,
 )
-from mop_core.study import RANKING_LOSS_NAMES
-from mop_core.variants import Ranking, Width
+from mop_core.distill.states import task_states
+from mop_core.distill.student import Student, StudentConfig, StudentGroup
+from mop_core.experiment.study import RANKING_LOSS_NAMES
+from mop_core.experiment.variants import Ranking, Width
+from mop_core.learning.nn import DeterministicActor, with_task_id
 
 LOSSES = sorted(RANKING_LOSSES)
 
@@ -222,7 +222,7 @@ def test_ranking_config_errors_name_the_parameter():
 
 
 def test_the_hand_written_pairwise_backward_equals_autograds():
-    from mop_core.ranking import _pairwise_logistic_autograd
+    from mop_core.distill.ranking import _pairwise_logistic_autograd
 
     gen = torch.Generator().manual_seed(3)
     x1 = torch.randn(2, 4, 40, generator=gen, requires_grad=True)

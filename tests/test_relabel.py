@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from mop_core.data import DatasetError, read_dataset, read_relabel
-from mop_core.envs import WalkerEnv
 from mop_core.relabel import RelabelConfig, export_d4rl, load_transitions, relabel_dataset, relabel_rewards
+from mop_core.walker.envs import WalkerEnv
 
 TASKS = ("stand", "walk", "run")
 

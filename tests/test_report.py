@@ -10,12 +10,12 @@ from pathlib import Path
 
 import pytest
 
+from mop_core.experiment.runs import StudentRun
+from mop_core.experiment.variants import SHARING_VARIANTS
 from mop_core.report.document import render_report
 from mop_core.report.format import seed_band
 from mop_core.report.results import Run, StudyResults
-from mop_core.runs import StudentRun
 from mop_core.statistics import confidence_interval
-from mop_core.variants import SHARING_VARIANTS
 
 TASKS = ["stand", "walk"]
 

@@ -1,4 +1,4 @@
-"""mop_core/rollout.py: K walkers stepped together give what one walker at a time gives, and
+"""mop_core/walker/rollout.py: K walkers stepped together give what one walker at a time gives, and
 trajectory_returns sums complete episodes only."""
 
 from __future__ import annotations
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from mop_core.envs import WalkerEnv
-from mop_core.rollout import (
+from mop_core.walker.envs import WalkerEnv
+from mop_core.walker.rollout import (
     collect_episodes,
     episode_returns,
     policies_returns_and_states,

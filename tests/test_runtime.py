@@ -1,4 +1,4 @@
-"""mop_core/runtime.py: seeds from what a run is, thread pinning, the device, progress bars, the worker
+"""mop_core/learning/runtime.py: seeds from what a run is, thread pinning, the device, progress bars, the worker
 pool and the process settings for compute."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import torch
 
 from mop_core import runtime
 from mop_core.config import ConfigError
-from mop_core.runtime import (
+from mop_core.learning.runtime import (
     derive_seeds,
     parallel_map,
     progress_enabled,

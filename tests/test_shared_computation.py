@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 import torch
 
-from mop_core.artifacts import save_checkpoint
 from mop_core.config import ConfigError, to_dict
 from mop_core.distill.checkpoint import STUDENT_KIND, load_student
 from mop_core.distill.config import DistillConfig
@@ -27,7 +26,8 @@ from mop_core.representations.shared_computation import (
     untrained_like,
     visited_states,
 )
-from mop_core.rollout import episode_returns
+from mop_core.storage.artifacts import save_checkpoint
+from mop_core.walker.rollout import episode_returns
 
 
 def _student(num_tasks: int, seed: int = 0, task_scale: float = 1.0) -> Student:

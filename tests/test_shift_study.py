@@ -1,6 +1,7 @@
 """mop_core/shift/study.py and mop_core/report/shift.py: the state_shift stage's measures and tables,
-the state-shift students' names, configs and place in the catalogue (mop_core/variants.py,
-mop_core/runs.py, mop_core/catalogue.py) and the stage's table rows (mop_core/shift/results.py)."""
+the state-shift students' names, configs and place in the catalogue (mop_core/experiment/variants.py,
+mop_core/experiment/runs.py, mop_core/experiment/catalogue.py) and the stage's table rows
+(mop_core/shift/results.py)."""
 
 from __future__ import annotations
 
@@ -12,10 +13,10 @@ import numpy as np
 import pytest
 from trajectories import ar1_episodes
 
-from mop_core.catalogue import build_catalogue
 from mop_core.data import LEVELS
 from mop_core.distill.config import distill_config
-from mop_core.layout import composed_file, dataset_file
+from mop_core.experiment.catalogue import build_catalogue
+from mop_core.experiment.variants import VARIANTS, Composed, Corrected, Ranking, Size, Width
 from mop_core.report.shift import shift_section
 from mop_core.shift.results import describe, shift_stage, student_groups
 from mop_core.shift.study import (
@@ -26,7 +27,7 @@ from mop_core.shift.study import (
     read_states,
     student_table,
 )
-from mop_core.variants import VARIANTS, Composed, Corrected, Ranking, Size, Width
+from mop_core.storage.layout import composed_file, dataset_file
 
 CONFIG = MeasureConfig(states=1000, k=3, bootstrap=4, classifier_epochs=5, threads=1)
 

@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from mop_core import step_metrics
-from mop_core.runtime import TrainingDivergedError
-from mop_core.step_metrics import StepMetrics, as_floats
+from mop_core.learning.runtime import TrainingDivergedError
+from mop_core.learning.step_metrics import StepMetrics, as_floats
 
 
 def test_as_floats_reads_tensors_and_numbers_in_order():

@@ -1,4 +1,5 @@
-"""mop_core/study.py: the study grid as typed configs; every bad value raises a ConfigError naming its key."""
+"""mop_core/experiment/study.py: the study grid as typed configs; every bad value raises a ConfigError naming its
+key."""
 
 from __future__ import annotations
 
@@ -7,10 +8,9 @@ import re
 
 import pytest
 
-from mop_core.catalogue import LOSS_ACTORS
 from mop_core.config import ConfigError
-from mop_core.schedule import TrainSchedule
-from mop_core.study import (
+from mop_core.experiment.catalogue import LOSS_ACTORS
+from mop_core.experiment.study import (
     SECTIONS,
     DistillGrid,
     MultitaskGrid,
@@ -26,6 +26,7 @@ from mop_core.study import (
     teacher_grid,
     typed_section,
 )
+from mop_core.learning.schedule import TrainSchedule
 
 
 def _set(params: dict, key: str, value) -> dict:
@@ -209,10 +210,10 @@ def test_the_teacher_seed_must_be_an_integer(tiny_params, value):
 
 def test_the_data_sharing_names_the_params_check_knows_are_the_runs_own():
     """study.py checks data_sharing without importing the run kinds (collect reads study.py): its name
-    lists must stay equal to mop_core.runs'."""
-    from mop_core.runs import SHARING_KINDS
-    from mop_core.study import SHARING_STUDENTS, SHARING_TEACHERS
-    from mop_core.variants import SHARING_VARIANTS
+    lists must stay equal to mop_core.experiment.runs'."""
+    from mop_core.experiment.runs import SHARING_KINDS
+    from mop_core.experiment.study import SHARING_STUDENTS, SHARING_TEACHERS
+    from mop_core.experiment.variants import SHARING_VARIANTS
 
     assert SHARING_TEACHERS == SHARING_KINDS
     assert SHARING_STUDENTS == {name: v.kind for name, v in SHARING_VARIANTS.items() if v.pooled_states}

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from mop_core.config import ConfigError
-from mop_core.envs import PHYSICS_DIM, WalkerEnv, physics_replay_rewards
-from mop_core.tasks import TASKS, Stillness, WalkerTask, check_task_list, get_task, reward
+from mop_core.walker.envs import PHYSICS_DIM, WalkerEnv, physics_replay_rewards
+from mop_core.walker.tasks import TASKS, Stillness, WalkerTask, check_task_list, get_task, reward
 
 TRANSITIONS_PER_POLICY = 5000  # x2 policies = 10,000 per task
 
@@ -132,7 +132,7 @@ def test_stillness_rejects_bad_settings():
 
 
 def test_a_substitutes_set_replaces_its_base_task_and_learns_from_its_data():
-    from mop_core.tasks import data_tasks, substitute_base, substitute_tasks
+    from mop_core.walker.tasks import data_tasks, substitute_base, substitute_tasks
 
     assert substitute_base("stand_still") == "stand"
     assert substitute_tasks(("walk", "stand"), "stand_still") == ("walk", "stand_still")

@@ -6,7 +6,7 @@ import torch
 
 from mop_core.agents.td3 import TD3, TD3Config, td3_target
 from mop_core.data import Batch
-from mop_core.nn import smoothed_target_action
+from mop_core.learning.nn import smoothed_target_action
 
 CONFIG = TD3Config(hidden_sizes=(16, 16), batch_size=8, policy_delay=2)
 

@@ -12,8 +12,9 @@ import torch
 from mop_core.agents.pbrl import PBRLConfig, PessimisticCritic
 from mop_core.agents.pbrl_group import PBRLGroup
 from mop_core.data import TransitionTensors
+from mop_core.learning.schedule import TrainSchedule
+from mop_core.learning.training import RunPaths
 from mop_core.relabel import RelabelConfig, relabel_dataset
-from mop_core.schedule import TrainSchedule
 from mop_core.teachers import (
     DataSource,
     TeacherConfig,
@@ -25,7 +26,6 @@ from mop_core.teachers import (
     train_teacher,
     train_teacher_group,
 )
-from mop_core.training import RunPaths
 
 PBRL_TINY = PBRLConfig(hidden_sizes=(16, 16), ensemble_size=3, batch_size=16, ood_actions=1, learning_rate=1e-3)
 SCHEDULE = TrainSchedule(steps=40, eval_every=20, eval_episodes=2, final_eval_episodes=2, checkpoint_every=10,
@@ -156,7 +156,7 @@ def test_resume_file_of_another_config_or_a_broken_one_restarts_cleanly(sources,
 
     # a resume file left by a different configuration is not reused
     other = _config(schedule=TrainSchedule(**{**SCHEDULE.__dict__, "steps": 60}))
-    from mop_core.artifacts import save_checkpoint
+    from mop_core.storage.artifacts import save_checkpoint
     save_checkpoint(paths.resume, {"kind": "training_resume", "fingerprint": "something else", "step": 30})
     train_teacher("stand", sources["stand"], other, 0, 0, paths)
     assert _resumed_from(paths) == 0 and "restarting from step 0" in capsys.readouterr().out

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 from mop_core.report.headline import headline_metrics
-from mop_core.timings import stage_time_table, write_timing
+from mop_core.storage.timings import stage_time_table, write_timing
 
 
 def test_a_timing_record_has_the_seconds_the_extras_and_the_machine(tmp_path):

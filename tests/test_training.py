@@ -9,11 +9,9 @@ from dataclasses import replace
 import pytest
 import torch
 
-from mop_core.artifacts import read_curve, save_checkpoint
-from mop_core.layout import RunPaths
-from mop_core.runtime import TrainingDivergedError
-from mop_core.schedule import TrainSchedule
-from mop_core.training import (
+from mop_core.learning.runtime import TrainingDivergedError
+from mop_core.learning.schedule import TrainSchedule
+from mop_core.learning.training import (
     RESUME_KIND,
     finish_run,
     non_finite_tensor,
@@ -21,6 +19,8 @@ from mop_core.training import (
     train_loop,
     try_resume,
 )
+from mop_core.storage.artifacts import read_curve, save_checkpoint
+from mop_core.storage.layout import RunPaths
 
 
 def paths(root) -> RunPaths:

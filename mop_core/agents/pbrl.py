@@ -40,7 +40,7 @@ from torch import nn
 
 from mop_core.config import require
 from mop_core.data.buffer import Batch
-from mop_core.nn import (
+from mop_core.learning.nn import (
     ACTOR_TYPES,
     DeterministicActor,
     EnsembleCritic,
@@ -190,7 +190,7 @@ class PessimisticCritic:
     def loss(self, batch: Batch, policy: PolicyFn, target_policy: PolicyFn, beta: float,
              generator: torch.Generator) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """sum_e (L_in + L_ood) of the module docstring; one forward through the ensemble. Metrics
-        are 0-d tensors, not read here (:mod:`mop_core.step_metrics`)."""
+        are 0-d tensors, not read here (:mod:`mop_core.learning.step_metrics`)."""
         target = self.compute_target(batch, target_policy, generator)
         batch_size = batch.observations.shape[0]
         if self.config.ood_actions > 0:

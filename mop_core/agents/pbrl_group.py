@@ -4,7 +4,7 @@ Run r keeps everything a run alone has: its initialisation (the weights :class:`
 draws with its seed), its random generator (target smoothing, OOD actions, Gaussian samples, drawn in
 the order a run alone draws them), its minibatches, its entropy temperature and its Adam state. What
 the runs share is the tensors: layer k of the R actors is one ``[R, in, out]`` weight
-(:func:`~mop_core.nn.stack_networks`) and the R x E critics are one ensemble of R*E members, run r's
+(:func:`~mop_core.learning.nn.stack_networks`) and the R x E critics are one ensemble of R*E members, run r's
 being members ``r*E .. (r+1)*E - 1``. One forward, one backward and one fused Adam step serve every run.
 
 The loss is the sum over runs of each run's PBRL loss (:mod:`mop_core.agents.pbrl`'s docstring):
@@ -37,7 +37,7 @@ from mop_core.agents.pbrl import (
     ood_target,
 )
 from mop_core.data.buffer import Batch
-from mop_core.nn import (
+from mop_core.learning.nn import (
     EnsembleCritic,
     EnsembleLinear,
     GaussianActor,
@@ -51,7 +51,7 @@ from mop_core.nn import (
     soft_update,
     stack_networks,
 )
-from mop_core.step_metrics import run_key
+from mop_core.learning.step_metrics import run_key
 
 
 def stack_batches(batches: Sequence[Batch]) -> Batch:
@@ -62,14 +62,14 @@ def stack_batches(batches: Sequence[Batch]) -> Batch:
 
 def _forward(net: nn.Sequential, x: torch.Tensor, widest: int) -> torch.Tensor:
     """An ensemble network on one batch per member ``x [M, B, in]``: member by member where that pays
-    on a CPU (:func:`~mop_core.nn.member_loop_pays`), else one batched GEMM per layer."""
+    on a CPU (:func:`~mop_core.learning.nn.member_loop_pays`), else one batched GEMM per layer."""
     return ensemble_forward(net, x, member_loop_pays(x.shape[1], widest, x.device))
 
 
 class ActorGroup(nn.Module):
     """R PBRL actors (all deterministic or all Gaussian) as one network: ``obs [R, B, o] -> [R, B, a]``.
-    Run r computes what the r-th actor computes (:class:`~mop_core.nn.DeterministicActor`: ``tanh(f(s))``;
-    :class:`~mop_core.nn.GaussianActor`: its mean, and samples ``clip(mu + sigma eps, -1, 1)``)."""
+    Run r computes what the r-th actor computes (:class:`~mop_core.learning.nn.DeterministicActor`: ``tanh(f(s))``;
+    :class:`~mop_core.learning.nn.GaussianActor`: its mean, and samples ``clip(mu + sigma eps, -1, 1)``)."""
 
     def __init__(self, actors: Sequence[nn.Module]):
         super().__init__()
@@ -218,7 +218,7 @@ class PBRLGroup:
 
     def update(self, batch: Batch) -> dict[str, torch.Tensor | float]:
         """One critic step of every run (and every ``policy_delay``-th an actor step); metrics as 0-d
-        tensors named ``key@run`` (:func:`mop_core.step_metrics.run_key`)."""
+        tensors named ``key@run`` (:func:`mop_core.learning.step_metrics.run_key`)."""
         batch = batch.to(self.device)
         beta = beta_ood(self.updates, self.config)
         loss, per_run = self.critic_loss(batch, beta)

@@ -26,9 +26,9 @@ from mop_core.agents.pbrl import (
     make_actor,
     policy_actions,
 )
-from mop_core.conflict import flat_gradient, pairwise_cosines
 from mop_core.data.buffer import Batch
-from mop_core.nn import adam, numpy_policy, soft_update, with_task_id
+from mop_core.learning.conflict import flat_gradient, pairwise_cosines
+from mop_core.learning.nn import adam, numpy_policy, soft_update, with_task_id
 
 
 class MultiTaskPBRL:
@@ -78,7 +78,7 @@ class MultiTaskPBRL:
         return metrics
 
     def gradient_cosines(self, batches: Sequence[Batch], generator: torch.Generator) -> dict[str, float]:
-        """The gradient conflict on the shared actor (:mod:`mop_core.conflict`): per task pair, the
+        """The gradient conflict on the shared actor (:mod:`mop_core.learning.conflict`): per task pair, the
         cosine between task i's and task k's actor-objective gradients (each task's own critic on a
         batch of its own data, ``batches[i]``). ``generator`` draws the Gaussian actor's samples."""
         params = list(self.actor.parameters())

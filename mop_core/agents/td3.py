@@ -22,7 +22,7 @@ import torch
 
 from mop_core.config import require
 from mop_core.data.buffer import Batch
-from mop_core.nn import DeterministicActor, EnsembleCritic, adam, smoothed_target_action, soft_update
+from mop_core.learning.nn import DeterministicActor, EnsembleCritic, adam, smoothed_target_action, soft_update
 
 
 @dataclass(frozen=True)
@@ -96,7 +96,7 @@ class TD3:
 
     def update(self, batch: Batch) -> dict[str, torch.Tensor]:
         """One critic step; every ``policy_delay``-th call also an actor step and target update.
-        Metrics are 0-d tensors, read in batches by the caller (:mod:`mop_core.step_metrics`)."""
+        Metrics are 0-d tensors, read in batches by the caller (:mod:`mop_core.learning.step_metrics`)."""
         batch = batch.to(self.device)
         target = self.compute_target(batch)
         q = self.critic(batch.observations, batch.actions)  # [2, B]

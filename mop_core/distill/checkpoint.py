@@ -12,12 +12,12 @@ from typing import Callable
 import numpy as np
 import torch
 
-from mop_core.artifacts import load_checkpoint
 from mop_core.config import from_mapping
 from mop_core.distill.config import DistillConfig
 from mop_core.distill.losses import LOSSES
 from mop_core.distill.student import Student
-from mop_core.nn import numpy_policy, with_task_id
+from mop_core.learning.nn import numpy_policy, with_task_id
+from mop_core.storage.artifacts import load_checkpoint
 
 STUDENT_KIND = "mop_student"
 

@@ -13,9 +13,9 @@ from typing import Any, Mapping
 from mop_core.config import ConfigError, from_mapping, require
 from mop_core.distill.corrections import CORRECTIONS, DaggerConfig, ReweightConfig
 from mop_core.distill.losses import LOSSES, Q_REDUCTIONS
+from mop_core.distill.ranking import RANKING_LOSSES
 from mop_core.distill.student import StudentConfig
-from mop_core.ranking import RANKING_LOSSES
-from mop_core.study import DISTILL_GRID_KEYS, section
+from mop_core.experiment.study import DISTILL_GRID_KEYS, section
 
 STATE_SOURCES = ("offline", "online")
 LR_SCHEDULES = ("constant", "cosine")
@@ -32,7 +32,7 @@ def learning_rate_at(config: "DistillConfig", step: int, total_steps: int) -> fl
 
 @dataclass(frozen=True)
 class RankingConfig:
-    """The ranking regulariser of thesis 6.3.2 (mop_core.ranking): the loss becomes
+    """The ranking regulariser of thesis 6.3.2 (mop_core.distill.ranking): the loss becomes
 
         L_distill + weight * sum_j layer_weights[j] * mean_{i != k} mean_s L_rank(l_j(s, i), sg[l_j(s, k)])
 

@@ -32,8 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from mop_core.config import require
+from mop_core.experiment.variants import SHIFT_CORRECTIONS
 from mop_core.shift.measures import ClassifierConfig, crossfit_test, effective_share, row_episodes
-from mop_core.variants import SHIFT_CORRECTIONS
 
 CORRECTIONS = ("none", *SHIFT_CORRECTIONS)  # distill.correction: none, or a state_shift.corrections entry
 REWEIGHT_FOLDS = 2  # folds of whole episodes the density ratio is cross-fitted over

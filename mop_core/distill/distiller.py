@@ -20,14 +20,14 @@ from typing import Sequence
 
 import torch
 
-from mop_core.conflict import flat_gradient, pairwise_cosines
 from mop_core.distill.config import DistillConfig, learning_rate_at
 from mop_core.distill.losses import LOSSES, LossInputs, mse_per_state
+from mop_core.distill.ranking import SYMMETRIC_LOSSES, cross_task_ranking, ranking_loss
 from mop_core.distill.states import TaskStates
 from mop_core.distill.student import Student, StudentGroup
-from mop_core.nn import EnsembleCritic, adam, with_task_id
-from mop_core.ranking import SYMMETRIC_LOSSES, cross_task_ranking, ranking_loss
-from mop_core.step_metrics import run_key
+from mop_core.learning.conflict import flat_gradient, pairwise_cosines
+from mop_core.learning.nn import EnsembleCritic, adam, with_task_id
+from mop_core.learning.step_metrics import run_key
 
 
 def cumulative_weights(weights: torch.Tensor | None) -> torch.Tensor | None:

@@ -19,10 +19,10 @@ from mop_core.distill.states import (
     teacher_outputs,
 )
 from mop_core.distill.student import Student
+from mop_core.learning.training import returns_summary
 from mop_core.representations.measures import per_state_tau_by_layer
-from mop_core.rollout import policies_returns_and_states
 from mop_core.teachers import Teacher
-from mop_core.training import returns_summary
+from mop_core.walker.rollout import policies_returns_and_states
 
 
 def visited_probes(visited: Sequence[np.ndarray], per_task: int, seed: int) -> list[torch.Tensor]:
@@ -47,7 +47,7 @@ def group_rollouts(students: Sequence[Student], tasks: Sequence[str], task_index
                    ) -> Rollouts:
     """Every run's student on task ``tasks[task_index]`` (returns and, with ``keep_states``, visited
     states per run), the runs' walkers stepped together: what each run's own rollout gives, bit
-    for bit (:func:`mop_core.rollout.policies_returns_and_states`), in one MuJoCo batch."""
+    for bit (:func:`mop_core.walker.rollout.policies_returns_and_states`), in one MuJoCo batch."""
     return policies_returns_and_states([student_policy(s, task_index, device) for s in students], tasks[task_index],
                                        seeds, episode_length, rollout_envs, keep_states)
 
@@ -57,7 +57,7 @@ class GroupEvaluation:
     """How a group's students are evaluated online: every run on every task (its returns and
     visited states), and each run's per-state tau on the probes (``fixed_probes``, or with none, on
     states it visited: ``probe_source: visited``). The last curve point is the final evaluation
-    (:func:`~mop_core.training.train_loop`'s ``final_seeds``): its rollouts are kept in ``final``
+    (:func:`~mop_core.learning.training.train_loop`'s ``final_seeds``): its rollouts are kept in ``final``
     and the run's final metrics reuse them rather than rolling them out again."""
 
     tasks: Sequence[str]

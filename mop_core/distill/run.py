@@ -3,7 +3,7 @@
 The student for tasks (t_0, ..., t_{m-1}) learns from teacher i on task i's states (offline: the
 dataset teacher i was trained on; online: states teacher i visits). The run evaluates the student
 online on every task every ``eval_every`` steps (the learning curve), can be resumed like every
-training run (:mod:`mop_core.training`), and ends with a checkpoint (config, student weights, the
+training run (:mod:`mop_core.learning.training`), and ends with a checkpoint (config, student weights, the
 teachers it learned from) and a metrics record (return per task next to the teacher's).
 """
 
@@ -16,8 +16,6 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from mop_core.artifacts import read_curve, state_sha256, write_curve
-from mop_core.catalogue import check_student_inputs
 from mop_core.config import require, to_dict
 from mop_core.data.hdf5 import read_dataset_attrs
 from mop_core.distill.checkpoint import STUDENT_KIND
@@ -35,17 +33,19 @@ from mop_core.distill.states import (
     q_switch_states,
     task_states,
 )
-from mop_core.envs import ACT_DIM, OBS_DIM
-from mop_core.files import read_json
-from mop_core.runs import StudentRun
-from mop_core.runtime import derive_seeds
-from mop_core.schedule import TrainSchedule
-from mop_core.step_metrics import run_key, split_runs
-from mop_core.tasks import check_task_list
+from mop_core.experiment.catalogue import check_student_inputs
+from mop_core.experiment.runs import StudentRun
+from mop_core.experiment.variants import Q_SWITCH_JUDGES
+from mop_core.learning.runtime import derive_seeds
+from mop_core.learning.schedule import TrainSchedule
+from mop_core.learning.step_metrics import run_key, split_runs
+from mop_core.learning.training import RunPaths, finish_run, run_fingerprint, train_loop
+from mop_core.storage.artifacts import read_curve, state_sha256, write_curve
+from mop_core.storage.files import read_json
+from mop_core.storage.timings import per_second, write_timing
 from mop_core.teachers import Teacher, TeacherConfig, check_teacher_checkpoint, load_teacher
-from mop_core.timings import per_second, write_timing
-from mop_core.training import RunPaths, finish_run, run_fingerprint, train_loop
-from mop_core.variants import Q_SWITCH_JUDGES
+from mop_core.walker.envs import ACT_DIM, OBS_DIM
+from mop_core.walker.tasks import check_task_list
 
 
 @dataclass(frozen=True)

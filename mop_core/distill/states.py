@@ -21,8 +21,8 @@ import torch
 
 from mop_core.data.hdf5 import read_dataset
 from mop_core.distill.losses import reduce_ensemble
-from mop_core.nn import GaussianActor
-from mop_core.rollout import collect_episodes
+from mop_core.learning.nn import GaussianActor
+from mop_core.walker.rollout import collect_episodes
 
 
 @dataclass

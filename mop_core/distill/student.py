@@ -10,7 +10,7 @@ import torch
 from torch import nn
 
 from mop_core.config import require
-from mop_core.nn import (
+from mop_core.learning.nn import (
     DeterministicActor,
     GaussianActor,
     bounded_log_std,
@@ -78,7 +78,7 @@ class StudentGroup(nn.Module):
     checkpoints, evaluation and every later stage see ordinary students.
 
     On a CPU a group whose rows * width^2 is large runs member by member (plain GEMMs, hand-written
-    ReLU backward: :func:`~mop_core.nn.per_member_forward`), a small one as one batched GEMM per layer.
+    ReLU backward: :func:`~mop_core.learning.nn.per_member_forward`), a small one as one batched GEMM per layer.
     """
 
     def __init__(self, students: Sequence[Student]):

@@ -13,13 +13,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Sequence
 
+from mop_core.experiment.runs import student_group, student_recipe
+from mop_core.experiment.variants import Ranking, Variant, Width
 from mop_core.plots import interval_panels
 from mop_core.report.format import eval_entry, fmt, fmt_ci, fmt_normalised, not_run, table
 from mop_core.report.results import Run, StudyResults
-from mop_core.runs import student_group, student_recipe
 from mop_core.statistics import MIN_SEEDS_FOR_SEED_CI, TAU_BOUNDS
 from mop_core.statistics import seed_interval as interval_over_seeds
-from mop_core.variants import Ranking, Variant, Width
 
 TAU_VARIANT = "a"  # the thesis's formula (6.2.2); tau-b is in the shared computation section
 PROBE_STATES = {"offline": "offline dataset states", "visited": "states the student visited"}  # distill.probe_source
@@ -126,7 +126,7 @@ def structure_section(results: StudyResults, figure_dir: Path, link_prefix: str)
                           "ranking loss", f"MSE students with ranking regularisation (lambda = "
                           f"{settings.get('weight', 'n/a')})", log_x=False)
         out += [f"Loss = MSE + lambda sum_j w_j mean_(i != k) L_rank(l_j(s, i), sg[l_j(s, k)]) over every hidden "
-                f"layer j and ordered pair of task ids (symmetric in the tasks; mop_core/ranking.py), on "
+                f"layer j and ordered pair of task ids (symmetric in the tasks; mop_core/distill/ranking.py), on "
                 f"{settings.get('states', 'n/a')} state(s) per task per step (`distill.ranking.states`; the thesis "
                 "compares whole batches). Pairwise logistic: mean over the n(n-1) off-diagonal neuron pairs; "
                 "listwise: softmax cross-entropy of the labels' distribution against the scores'; NDCG through "

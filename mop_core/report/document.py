@@ -18,6 +18,14 @@ from typing import Mapping, Sequence
 
 from mop_core.data.hdf5 import LEVELS
 from mop_core.distill.losses import LOSSES
+from mop_core.experiment.runs import (
+    BEHAVIOUR_LEVELS,
+    behaviour_group,
+    multitask_group,
+    representation_group,
+    student_group,
+    teacher_group,
+)
 from mop_core.plots import band_curves
 from mop_core.report.format import (
     ci_caption,
@@ -35,14 +43,6 @@ from mop_core.report.format import (
     table,
 )
 from mop_core.report.results import Run, StudyResults
-from mop_core.runs import (
-    BEHAVIOUR_LEVELS,
-    behaviour_group,
-    multitask_group,
-    representation_group,
-    student_group,
-    teacher_group,
-)
 from mop_core.statistics import MIN_SEEDS_FOR_SEED_CI, confidence_interval
 
 
@@ -63,7 +63,7 @@ def header(results: StudyResults) -> str:
              "over its episodes, stratified-bootstrap intervals over runs, none under 3 runs. Learning-curve bands "
              "are over training seeds and drawn only with >= 3 seeds. Every return shown for a policy is the eval "
              "stage's.", ""]
-    lines += ["Stage times are in results/timings/ (`python -m mop_core.timings` prints the table), not here: "
+    lines += ["Stage times are in results/timings/ (`python -m mop_core.storage.timings` prints the table), not here: "
               "a rerun that reproduces the results leaves this report unchanged.", ""]
     return "\n".join(lines)
 
@@ -180,7 +180,7 @@ def multitask_section(results: StudyResults, figure_dir: Path, link_prefix: str)
 
 def conflict_lines(results: StudyResults, figure_dir: Path, link_prefix: str) -> list[str]:
     """Thesis 5.1.2's explanation of naive multi-task failure as a number: the cosine between the
-    tasks' gradients on the shared weights (mop_core/conflict.py) during training, per task pair."""
+    tasks' gradients on the shared weights (mop_core/learning/conflict.py) during training, per task pair."""
     families = [(f"multi-task actor, {level}", runs)
                 for (level,), runs in group_runs(results.multitask, "level").items()]
     families += [(f"{loss} students, {pairing}", runs)
@@ -208,7 +208,8 @@ def conflict_lines(results: StudyResults, figure_dir: Path, link_prefix: str) ->
     return ["### Gradient conflict (thesis 5.1.2 as a number)", "",
             f"![gradient conflict]({link_prefix}{name})", "",
             f"{curve_caption(drawn)}. Cosine between task i's and task k's gradients on the weights the tasks "
-            "share (PCGrad's conflict measure, Yu et al. 2020; mop_core/conflict.py), on a fresh batch of each "
+            "share (PCGrad's conflict measure, Yu et al. 2020; mop_core/learning/conflict.py), on a "
+            "fresh batch of each "
             "task's states at every evaluation: the multi-task baseline's shared actor (each task's actor objective "
             "under its own critic), and the students' whole network (each task's distillation loss; the ranking "
             "regulariser left out). Below 0: a step for one task undoes part of the other's.", "",
@@ -490,7 +491,8 @@ def cross_task_section(results: StudyResults) -> str:
 
 TRANSFER_NOTES = {
     "stand_still": "stand_still = stand x tol(|horizontal velocity|; bounds 0, margin 0.5 m/s, gaussian, 0.1) "
-                   "(mop_core/tasks.py): dm_control's stand does not forbid moving, so walking upright earns the "
+                   "(mop_core/walker/tasks.py): dm_control's stand does not forbid moving, so "
+                   "walking upright earns the "
                    "full stand reward (the thesis's explanation of Table 6.3, 6.4.5); under stand_still a teacher "
                    "that walks at 1 m/s keeps 1e-4 of it.",
 }

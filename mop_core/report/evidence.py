@@ -5,7 +5,7 @@ Returns are the eval stage's (``seed_means`` per group and task), as normalised 
 ``100 (R - R_random) / (R_expert - R_random)`` so that margins and effects mean the same on every
 task. Tau comes from the shared_computation stage (Table 6.1/6.2's measures on visited states, per
 student) or from the distill runs' probe states (Figures 6.4b/6.5b: the same offline states for every
-student of a pairing, at initialisation and at the end). Group names are built by mop_core.runs'
+student of a pairing, at initialisation and at the end). Group names are built by mop_core.experiment.runs'
 own functions, never parsed.
 """
 
@@ -16,9 +16,9 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from mop_core.experiment.runs import representation_group, student_group, student_recipe, teacher_group
+from mop_core.experiment.variants import Composed, Ranking, Sharing, SingleTask, Variant, Width
 from mop_core.report.results import StudyResults
-from mop_core.runs import representation_group, student_group, student_recipe, teacher_group
-from mop_core.variants import Composed, Ranking, Sharing, SingleTask, Variant, Width
 
 Seeds = dict[int, float]  # training seed (or a group member's position) -> value
 

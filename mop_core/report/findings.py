@@ -19,6 +19,7 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy.stats import beta, spearmanr
 
+from mop_core.experiment.variants import Variant
 from mop_core.report.evidence import Evidence
 from mop_core.report.verdicts import (
     ABOVE,
@@ -33,7 +34,6 @@ from mop_core.report.verdicts import (
     versus_run,
 )
 from mop_core.statistics import TAU_BOUNDS, seed_interval
-from mop_core.variants import Variant
 
 MOP: Variant | None = None  # plain MOP's students: no variant
 RETURN_MARGIN = 10.0  # normalised points: "matches" = within 10% of the expert-random range

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-from mop_core.runs import is_cross_group
+from mop_core.experiment.runs import is_cross_group
 
 TAU_KEYS = ("per_state_tau_a", "per_state_tau_b")
 

@@ -1,6 +1,6 @@
 """What a study's runs wrote, as the report and the verdicts read it: one owner of the result schema.
 
-:class:`Run` is one trained model (its catalogue run, :mod:`mop_core.runs`, in ``origin``);
+:class:`Run` is one trained model (its catalogue run, :mod:`mop_core.experiment.runs`, in ``origin``);
 :class:`StudyResults` is everything the report shows (loaded by :func:`mop_core.report.document.load_results`).
 """
 
@@ -19,7 +19,7 @@ class Run:
     seed: int
     metrics: dict
     curve: Sequence[Mapping[str, str]]
-    origin: Any = None  # the catalogue's typed run (mop_core.runs: TeacherRun, MultitaskRun, StudentRun)
+    origin: Any = None  # the catalogue's typed run (mop_core.experiment.runs: TeacherRun, MultitaskRun, StudentRun)
 
 
 @dataclass

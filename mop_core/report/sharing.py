@@ -15,11 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
-from mop_core.plots import interval_panels
-from mop_core.report.common_structure import fmt_interval, seed_interval
-from mop_core.report.format import eval_entry, fmt, fmt_ci, fmt_normalised, not_run, table
-from mop_core.report.results import Run, StudyResults
-from mop_core.runs import (
+from mop_core.experiment.runs import (
     TeacherRun,
     no_sharing_group,
     own_teacher,
@@ -27,8 +23,12 @@ from mop_core.runs import (
     student_group,
     student_recipe,
 )
-from mop_core.tasks import data_tasks, substitute_tasks
-from mop_core.variants import Sharing, Variant
+from mop_core.experiment.variants import Sharing, Variant
+from mop_core.plots import interval_panels
+from mop_core.report.common_structure import fmt_interval, seed_interval
+from mop_core.report.format import eval_entry, fmt, fmt_ci, fmt_normalised, not_run, table
+from mop_core.report.results import Run, StudyResults
+from mop_core.walker.tasks import data_tasks, substitute_tasks
 
 # Thesis Table 6.2 (walk x stand students, tau-a per layer, one seed): the reference the measured
 # rows sit next to. Expert x Expert's OQS row has no approach label in the thesis's text; it is the
@@ -50,7 +50,7 @@ class TaskSet:
     substitute: str = ""
 
     def scope(self, level: str) -> str:
-        """The students' pairing part of their group names (mop_core.runs.StudentRun.scope)."""
+        """The students' pairing part of their group names (mop_core.experiment.runs.StudentRun.scope)."""
         return f"{self.substitute}-{level}" if self.substitute else level
 
     def student_variant(self, variant: Variant | None) -> Variant | None:

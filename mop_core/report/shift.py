@@ -8,9 +8,9 @@ from __future__ import annotations
 
 from typing import Mapping, Sequence
 
-from mop_core.layout import HELDOUT_SUFFIX
+from mop_core.experiment.study import OFFLINE_DATA
 from mop_core.report.format import fmt, not_run, table
-from mop_core.study import OFFLINE_DATA
+from mop_core.storage.layout import HELDOUT_SUFFIX
 
 
 def _plain(info: Mapping) -> bool:

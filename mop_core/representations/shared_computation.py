@@ -40,6 +40,8 @@ import numpy as np
 import torch
 
 from mop_core.config import from_mapping, require
+from mop_core.experiment.study import positive_threads, section
+from mop_core.learning.runtime import derive_seeds, parallel_map
 from mop_core.representations.measures import (
     TAU_VARIANTS,
     average_comparison,
@@ -48,9 +50,7 @@ from mop_core.representations.measures import (
     linear_cka,
 )
 from mop_core.representations.similarity import debiased_cka, dormant_shares, procrustes_similarity, task_selectivity
-from mop_core.rollout import collect_episodes
-from mop_core.runtime import derive_seeds, parallel_map
-from mop_core.study import positive_threads, section
+from mop_core.walker.rollout import collect_episodes
 
 TIES_NOTE = ("Kendall's tau in two variants: tau-a = (C - D) / n0, the thesis's formula (6.2.2) and the "
              "reference code's, where tied neuron pairs stay in the denominator; tau-b = (C - D) / "

@@ -15,10 +15,10 @@ from pathlib import Path
 
 import torch
 
-from mop_core.artifacts import read_curve
-from mop_core.catalogue import Catalogue
 from mop_core.distill.checkpoint import load_student
-from mop_core.files import read_json, write_json
+from mop_core.experiment.catalogue import Catalogue
+from mop_core.experiment.runs import no_sharing_group
+from mop_core.learning.runtime import configure_compute, derive_seeds
 from mop_core.plots import metric_curves, sorted_activations
 from mop_core.representations.shared_computation import (
     TIES_NOTE,
@@ -31,8 +31,8 @@ from mop_core.representations.shared_computation import (
     summarise_students,
     untrained_like,
 )
-from mop_core.runs import no_sharing_group
-from mop_core.runtime import configure_compute, derive_seeds
+from mop_core.storage.artifacts import read_curve
+from mop_core.storage.files import read_json, write_json
 
 
 def compact(record: dict) -> dict:

@@ -40,11 +40,11 @@ import numpy as np
 
 from mop_core.config import from_mapping, keys_under, require
 from mop_core.data import write_dataset
-from mop_core.layout import REFERENCE, composed_file, heldout_name
-from mop_core.rollout import Policy, collect_episodes
-from mop_core.runs import TeacherRun
-from mop_core.runtime import derive_seeds
-from mop_core.study import pairing_levels, section, shift_grid, study_config
+from mop_core.experiment.runs import TeacherRun
+from mop_core.experiment.study import pairing_levels, section, shift_grid, study_config
+from mop_core.learning.runtime import derive_seeds
+from mop_core.storage.layout import REFERENCE, composed_file, heldout_name
+from mop_core.walker.rollout import Policy, collect_episodes
 
 REST_POLICIES = ("noise", "random")
 POOLS = ("teacher", *REST_POLICIES)
@@ -220,7 +220,7 @@ def dataset_writer(path_of: Callable[[str], Path], base_attrs: Mapping[str, Any]
 
 
 def compose_config(grid) -> ComposeConfig:
-    """The composed-data settings of a :class:`mop_core.study.ShiftGrid` (errors name ``state_shift.<key>``);
+    """The composed-data settings of a :class:`mop_core.experiment.study.ShiftGrid` (errors name ``state_shift.<key>``);
     no ``compositions`` in the params: the thesis's four."""
     with keys_under("state_shift"):
         return ComposeConfig(datasets=tuple(grid.datasets), compositions=dict(grid.compositions or THESIS_COMPOSITIONS),
@@ -231,7 +231,7 @@ def compose_config(grid) -> ComposeConfig:
 
 def compose_teacher_data(teacher_path: Path, task: str, level: str, config: ComposeConfig, seed: int,
                          episode_length: int, path_of: Callable[[str], Path]) -> dict:
-    """The compose step of one task (a :func:`mop_core.runtime.parallel_map` job): load the frozen
+    """The compose step of one task (a :func:`mop_core.learning.runtime.parallel_map` job): load the frozen
     deterministic teacher of ``teacher_path`` and write its composed datasets and reference episodes
     to ``path_of(name)``. Returns :func:`compose_task`'s summary with the seconds it took."""
     from mop_core.teachers import load_teacher  # the teachers' training code only where it is needed
@@ -250,7 +250,7 @@ def compose_teacher_data(teacher_path: Path, task: str, level: str, config: Comp
 def composing_teachers(params: Mapping[str, Any]) -> tuple[TeacherRun, ...]:
     """Per study task, the deterministic MOP teacher of the ``state_shift.pairing`` level (seed
     ``distill.teacher_seed``) whose rollouts compose its datasets: the teachers the state-shift students
-    learn from (mop_core.catalogue, tested equal); () when ``state_shift.datasets`` composes none. From
+    learn from (mop_core.experiment.catalogue, tested equal); () when ``state_shift.datasets`` composes none. From
     the study, state_shift and distill.teacher_seed params alone (the compose stage's)."""
     study = study_config(params)
     grid = shift_grid(params, study)
@@ -263,7 +263,7 @@ def composing_teachers(params: Mapping[str, Any]) -> tuple[TeacherRun, ...]:
 
 def compose_jobs(teachers: Sequence[TeacherRun], config: ComposeConfig, seed: int, episode_length: int) -> list[tuple]:
     """The :func:`compose_teacher_data` jobs of ``teachers`` (one per task), each writing its datasets to
-    data/composed/<task>-<level>-<name>.hdf5 (mop_core.layout.composed_file)."""
+    data/composed/<task>-<level>-<name>.hdf5 (mop_core.storage.layout.composed_file)."""
     return [(t.paths.checkpoint, t.task, t.level, config, seed, episode_length, partial(composed_file, t.task, t.level))
             for t in teachers]
 

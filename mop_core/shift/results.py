@@ -12,12 +12,13 @@ from typing import Any, Mapping
 
 from scipy.stats import spearmanr
 
-from mop_core.catalogue import Catalogue
 from mop_core.data import LEVELS, read_json
-from mop_core.layout import REFERENCE, composed_file, dataset_file
+from mop_core.experiment.catalogue import Catalogue
+from mop_core.experiment.runs import StudentRun, teacher_group
+from mop_core.experiment.study import pairing_levels, section, shift_grid, study_config
+from mop_core.experiment.variants import OFFLINE_DATA, Composed, Corrected, Size, Variant, Width
+from mop_core.learning.runtime import derive_seeds
 from mop_core.plots import interval_panels
-from mop_core.runs import StudentRun, teacher_group
-from mop_core.runtime import derive_seeds
 from mop_core.shift.study import (
     MeasureConfig,
     correction_table,
@@ -27,8 +28,7 @@ from mop_core.shift.study import (
     read_states,
     student_table,
 )
-from mop_core.study import pairing_levels, section, shift_grid, study_config
-from mop_core.variants import OFFLINE_DATA, Composed, Corrected, Size, Variant, Width
+from mop_core.storage.layout import REFERENCE, composed_file, dataset_file
 
 
 def describe(variant: Variant | None, width: int) -> dict:

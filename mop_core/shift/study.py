@@ -45,7 +45,6 @@ import numpy as np
 
 from mop_core.config import from_mapping, require
 from mop_core.data import read_dataset
-from mop_core.layout import REFERENCE
 from mop_core.shift.measures import (
     ClassifierConfig,
     crossfit_test,
@@ -58,6 +57,7 @@ from mop_core.shift.measures import (
     row_episodes,
 )
 from mop_core.statistics import RETURN_BOUNDS, normalised_score, seed_interval
+from mop_core.storage.layout import REFERENCE
 
 
 @dataclass(frozen=True)
@@ -83,7 +83,7 @@ ACTION_ERRORS = ("train", "heldout", "visited")  # where a student's action erro
 
 
 def measure_config(grid) -> MeasureConfig:
-    """The measure settings of a :class:`mop_core.study.ShiftGrid`."""
+    """The measure settings of a :class:`mop_core.experiment.study.ShiftGrid`."""
     return from_mapping(MeasureConfig, grid.measure or {}, "state_shift.measure")
 
 

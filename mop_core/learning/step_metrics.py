@@ -18,7 +18,7 @@ from typing import Any, Mapping
 import numpy as np
 import torch
 
-from mop_core.runtime import TrainingDivergedError
+from mop_core.learning.runtime import TrainingDivergedError
 
 SYNC_EVERY = 1000  # updates between reads when nothing else asks for the values
 

@@ -14,8 +14,8 @@ from typing import Callable, Iterator, Sequence
 import numpy as np
 import torch
 
-from mop_core.envs import VectorWalkerEnv
-from mop_core.tasks import WalkerTask
+from mop_core.walker.envs import VectorWalkerEnv
+from mop_core.walker.tasks import WalkerTask
 
 Policy = Callable[[np.ndarray], np.ndarray]  # observations [K, 24] -> actions [K, 6]
 

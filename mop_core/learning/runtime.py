@@ -68,11 +68,11 @@ def keep_freed_memory() -> bool:
         return False
 
 
-_STEP_THREADS = [1]  # threads a VectorWalkerEnv (mop_core.envs) steps its members with
+_STEP_THREADS = [1]  # threads a VectorWalkerEnv (mop_core.walker.envs) steps its members with
 
 
 def set_step_threads(threads: int) -> None:
-    """Step the members of every ``mop_core.envs.VectorWalkerEnv`` in ``threads`` threads (each a share
+    """Step the members of every ``mop_core.walker.envs.VectorWalkerEnv`` in ``threads`` threads (each a share
     of the walkers; results do not depend on it). :func:`configure_compute` sets it to the process's
     torch threads: a stage given 2 cores uses both for its rollouts too."""
     if threads < 1:

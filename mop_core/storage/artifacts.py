@@ -11,7 +11,7 @@ from typing import Any
 import torch
 
 from mop_core.config import InputFileError, first_line
-from mop_core.files import atomic_path
+from mop_core.storage.files import atomic_path
 
 
 def state_sha256(state: dict[str, torch.Tensor]) -> str:

@@ -17,8 +17,8 @@
   (distill_sharing entries).
 
 Each run has a ``name`` (its files), a ``group`` (the eval stage's key: the runs whose returns form
-one confidence interval, e.g. every seed of a student) and its file paths (mop_core.layout). The
-group names are made here and nowhere else. Which runs a study has: mop_core.catalogue.
+one confidence interval, e.g. every seed of a student) and its file paths (mop_core.storage.layout). The
+group names are made here and nowhere else. Which runs a study has: mop_core.experiment.catalogue.
 """
 
 from __future__ import annotations
@@ -27,7 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Sequence
 
-from mop_core.layout import (
+from mop_core.experiment.variants import Variant
+from mop_core.storage.layout import (
     REFERENCE,
     RunPaths,
     behaviour_checkpoint,
@@ -38,8 +39,7 @@ from mop_core.layout import (
     run_paths,
     tau_curves_dir,
 )
-from mop_core.tasks import data_tasks, substitute_base, substitute_tasks
-from mop_core.variants import Variant
+from mop_core.walker.tasks import data_tasks, substitute_base, substitute_tasks
 
 if TYPE_CHECKING:
     from mop_core.distill.config import DistillConfig
@@ -77,7 +77,7 @@ def multitask_group(level: str) -> str:
 
 def student_recipe(loss: str, variant: Variant | None = None) -> str:
     """What a student learned by: its loss, and its variant if any (``mse``, ``mse-w16``,
-    ``mse-rank_pairwise``: mop_core.variants)."""
+    ``mse-rank_pairwise``: mop_core.experiment.variants)."""
     return f"{loss}-{variant.name}" if variant else loss
 
 
@@ -214,7 +214,7 @@ class StudentRun:
     pairing: str
     seed: int
     teachers: tuple[TeacherRun, ...]  # one per task, in task-id order
-    variant: Variant | None = None  # its one change to plain MOP (mop_core.variants); None = plain MOP
+    variant: Variant | None = None  # its one change to plain MOP (mop_core.experiment.variants); None = plain MOP
     candidates: tuple[tuple[TeacherRun, ...], ...] = ()  # OQS: per task i, its teachers on D_{j->i} for every j
     substitute: str = ""  # the task standing in for its base task in this student's task set (data_sharing)
     family = "students"

@@ -1,7 +1,7 @@
 """What a profile costs: its schedules times measured rates, per stage, in hours on one machine.
 
-    python -m mop_core.plan profiles/thesis.yaml --rates benchmarks/rates/<device>.json
-    python -m mop_core.plan profiles/thesis.yaml --scale 0.001 --out short.yaml   # a shortened copy
+    python -m mop_core.experiment.plan profiles/thesis.yaml --rates benchmarks/rates/<device>.json
+    python -m mop_core.experiment.plan profiles/thesis.yaml --scale 0.001 --out short.yaml   # a shortened copy
 
 The rates file is what ``benchmarks/bench_rates.py`` measured on a device at that profile's sizes
 (TD3, PBRL and student-group updates/s, batched rollout control steps/s). The estimate counts, per
@@ -38,10 +38,10 @@ from typing import Any, Callable, Mapping, Sequence
 
 import yaml
 
-from mop_core.catalogue import build_catalogue
-from mop_core.runs import StudentRun
+from mop_core.experiment.catalogue import build_catalogue
+from mop_core.experiment.runs import StudentRun
+from mop_core.experiment.study import shift_grid, study_config
 from mop_core.shift.compose import compose_config, composing_teachers
-from mop_core.study import shift_grid, study_config
 
 
 @dataclass(frozen=True)
@@ -123,7 +123,7 @@ def _compose_hours(params: Mapping[str, Any], rates: Rates) -> tuple[int, float]
 
 
 def stage_hours(params: Mapping[str, Any], rates: Rates) -> dict[str, tuple[int, float]]:
-    """stage -> (runs, hours on one device): the runs of the params' catalogue (mop_core.catalogue), the
+    """stage -> (runs, hours on one device): the runs of the params' catalogue (mop_core.experiment.catalogue), the
     eval stage's every job of it (transfer tasks included), compose's pools as compose_task rolls them."""
     catalogue = build_catalogue(params)
     tasks, length = catalogue.tasks, params["study"]["episode_length"]

@@ -17,8 +17,8 @@ from typing import Any
 
 import torch
 
-from mop_core.artifacts import package_versions
-from mop_core.files import write_json
+from mop_core.storage.artifacts import package_versions
+from mop_core.storage.files import write_json
 
 PIPELINE_ORDER = ("collect", "relabel", "teachers", "multitask", "students", "eval", "shared_computation")
 
@@ -64,7 +64,7 @@ def stage_time_table(root: str | os.PathLike) -> str:
     return "\n".join([*lines, f"| **total** | | **{total:.0f}** ({total / 60:.1f} min) |"])
 
 
-if __name__ == "__main__":  # python -m mop_core.timings [results/timings]
+if __name__ == "__main__":  # python -m mop_core.storage.timings [results/timings]
     import sys
 
     print(stage_time_table(sys.argv[1] if len(sys.argv) > 1 else "results/timings"))

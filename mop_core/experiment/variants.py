@@ -4,7 +4,7 @@ A variant is a frozen dataclass of one *family*, registered in :data:`VARIANTS` 
 its algorithm configs with ``register_learnable``). It carries everything a consumer needs as fields:
 
 - its :attr:`~Variant.name`, derived from the fields: the files of its students are
-  ``<loss>-<name>-<pairing>-<seed>`` (mop_core.runs.StudentRun.name);
+  ``<loss>-<name>-<pairing>-<seed>`` (mop_core.experiment.runs.StudentRun.name);
 - :meth:`~Variant.apply`: the distillation config it trains with (the plain one with its change);
 - the inputs it adds to a plain student's: a composed dataset its states come from
   (:attr:`~Variant.composed`), the reference states of a density-ratio correction
@@ -17,7 +17,7 @@ Families (thesis sections):
 
 - :class:`Width` (6.3.1, Figure 6.4): every hidden layer ``width`` wide, same depth;
 - :class:`Ranking` (6.3.2, Figure 6.5): the ranking regulariser with ranking loss ``loss``
-  (mop_core.ranking: L = L_distil + lambda * sum_l w_l L_rank(h_l(s, i), h_l(s, j)));
+  (mop_core.distill.ranking: L = L_distil + lambda * sum_l w_l L_rank(h_l(s, i), h_l(s, j)));
 - :class:`SingleTask`: one task's teacher and dataset alone, the no-sharing reference of
   shared_computation;
 - :class:`Sharing` (6.4): students on the union of the tasks' states D = U_i D_i, learning from DS
@@ -30,8 +30,8 @@ Families (thesis sections):
 - :class:`Corrected` (5.3): a state-shift correction (reweight, dagger: mop_core.distill.corrections)
   on a composed dataset or the offline one, at width ``width``.
 
-A new family is a class here with ``@register_variant``, its grid in mop_core.study, its students in
-mop_core.catalogue and its distill stage in dvc.yaml. Nothing parses a name back: consumers read fields.
+A new family is a class here with ``@register_variant``, its grid in mop_core.experiment.study, its students in
+mop_core.experiment.catalogue and its distill stage in dvc.yaml. Nothing parses a name back: consumers read fields.
 """
 
 from __future__ import annotations

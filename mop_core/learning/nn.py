@@ -100,7 +100,7 @@ def stack_networks(nets: Sequence[nn.Sequential]) -> nn.Sequential:
     group = mlp(sizes[0], sizes[1:-1], sizes[-1], layer_norm, ensemble_size=len(nets)).to(linears[0].weight.device)
     if [type(layer) for layer in group] != [{nn.Linear: EnsembleLinear, nn.LayerNorm: EnsembleLayerNorm}.get(k, k)
                                             for k in kinds]:
-        raise ValueError("nets: expected networks built by mop_core.nn.mlp")
+        raise ValueError("nets: expected networks built by mop_core.learning.nn.mlp")
     with torch.no_grad():
         for index, layer in enumerate(group):
             if isinstance(layer, EnsembleLinear):

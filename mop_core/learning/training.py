@@ -20,13 +20,13 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from mop_core.artifacts import load_checkpoint, save_checkpoint, write_curve
-from mop_core.files import write_json
-from mop_core.layout import RunPaths
-from mop_core.runtime import TrainingDivergedError
-from mop_core.schedule import TrainSchedule
-from mop_core.step_metrics import StepMetrics
-from mop_core.timings import per_second, write_timing
+from mop_core.learning.runtime import TrainingDivergedError
+from mop_core.learning.schedule import TrainSchedule
+from mop_core.learning.step_metrics import StepMetrics
+from mop_core.storage.artifacts import load_checkpoint, save_checkpoint, write_curve
+from mop_core.storage.files import write_json
+from mop_core.storage.layout import RunPaths
+from mop_core.storage.timings import per_second, write_timing
 
 RESUME_KIND = "training_resume"
 
@@ -76,7 +76,7 @@ def train_loop(agent, update: Callable[[], dict], evaluate: Callable[[list[int]]
     Returns the learning curve rows, the training seconds and the step it resumed from (0 if none).
     A NaN or infinite loss or weight stops the run with :class:`TrainingDivergedError` naming
     ``desc`` and the step; the last good resume file is kept. Losses stay on the device until read
-    (:class:`~mop_core.step_metrics.StepMetrics`: every ``SYNC_EVERY`` steps, before an evaluation and
+    (:class:`~mop_core.learning.step_metrics.StepMetrics`: every ``SYNC_EVERY`` steps, before an evaluation and
     before a resume file), weights are checked at every checkpoint.
     The resume file holds the losses of the evaluation window in progress, so a resumed run's
     curve equals an uninterrupted one's whatever ``checkpoint_every`` and ``eval_every`` are.
@@ -126,7 +126,7 @@ def finish_run(paths: RunPaths, checkpoint: dict, curve: list[dict], metrics: di
                resumed_from: int, device: torch.device | str) -> dict:
     """The end of every offline training run (teachers, the multi-task baseline, students): the final
     checkpoint, the learning curve, the metrics record, the timing record (``seconds`` for ``steps``
-    updates, the step it resumed from, the machine: :mod:`mop_core.timings`), and the resume file
+    updates, the step it resumed from, the machine: :mod:`mop_core.storage.timings`), and the resume file
     dropped last (a crash before this point resumes, after it the run is complete). Returns ``metrics``.
 
     The checkpoint, curve and metrics hold only what the run computed, never a time or a package

@@ -1,11 +1,11 @@
 """The study catalogue: every run a study's params define, what each learned from, and which
 policies the eval stage rolls out on which tasks.
 
-:func:`build_catalogue` makes it from the params' grid (:mod:`mop_core.study`); every stage and the
+:func:`build_catalogue` makes it from the params' grid (:mod:`mop_core.experiment.study`); every stage and the
 report ask it rather than looping over the params' grids themselves. The run kinds, their names and
-evaluation groups are in :mod:`mop_core.runs`; a student's teachers follow from the loss table
+evaluation groups are in :mod:`mop_core.experiment.runs`; a student's teachers follow from the loss table
 (:data:`mop_core.distill.losses.LOSSES`: KL distils Gaussian teachers). A new run kind is a class in
-mop_core.runs, its entries in :func:`build_catalogue` and its jobs in :meth:`Catalogue.eval_jobs`.
+mop_core.experiment.runs, its entries in :func:`build_catalogue` and its jobs in :meth:`Catalogue.eval_jobs`.
 """
 
 from __future__ import annotations
@@ -15,11 +15,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from mop_core.artifacts import file_sha256
 from mop_core.config import InputFileError
 from mop_core.data.hdf5 import read_dataset_attrs
 from mop_core.distill.losses import LOSSES
-from mop_core.runs import (
+from mop_core.experiment.runs import (
     BEHAVIOUR_LEVELS,
     BehaviourRun,
     MultitaskRun,
@@ -29,8 +28,7 @@ from mop_core.runs import (
     own_teacher,
     relabelled_teacher_runs,
 )
-from mop_core.runtime import derive_seeds
-from mop_core.study import (
+from mop_core.experiment.study import (
     distill_grid,
     multitask_grid,
     pairing_levels,
@@ -40,8 +38,20 @@ from mop_core.study import (
     study_config,
     teacher_grid,
 )
-from mop_core.tasks import data_tasks, substitute_tasks
-from mop_core.variants import SHARING_VARIANTS, Composed, Corrected, Ranking, Sharing, SingleTask, Size, Variant, Width
+from mop_core.experiment.variants import (
+    SHARING_VARIANTS,
+    Composed,
+    Corrected,
+    Ranking,
+    Sharing,
+    SingleTask,
+    Size,
+    Variant,
+    Width,
+)
+from mop_core.learning.runtime import derive_seeds
+from mop_core.storage.artifacts import file_sha256
+from mop_core.walker.tasks import data_tasks, substitute_tasks
 
 LOSS_ACTORS = {name: loss.teacher_actor for name, loss in LOSSES.items()}  # what distill_grid checks
 
@@ -211,7 +221,8 @@ class Catalogue:
 
     def distill_stages(self) -> dict[str, dict[str, list[StudentRun]]]:
         """dvc.yaml distill stage -> its entries (:meth:`student_entries`): ``distill`` for plain MOP, the
-        variant's :attr:`~mop_core.variants.Variant.stage`, ``distill_substitute`` for a substituted task set."""
+        variant's :attr:`~mop_core.experiment.variants.Variant.stage`, ``distill_substitute`` for a substituted
+        task set."""
         stages: dict[str, dict[str, list[StudentRun]]] = {}
         for entry, runs in self.student_entries().items():
             first = runs[0]

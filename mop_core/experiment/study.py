@@ -1,10 +1,10 @@
 """The study's grid as typed configs: its tasks and levels, and which teachers, baselines and
-students it trains (the catalogue, mop_core.catalogue, lists the runs they make).
+students it trains (the catalogue, mop_core.experiment.catalogue, lists the runs they make).
 
 A stage reads params.yaml (stages/common.py) and hands the mapping here; nothing here reads a file.
 A bad value raises ConfigError naming its key (``distill.pairings``, ``train_teachers.seeds``).
 Each learner's own settings are typed next to it (``teacher_config`` in mop_core.teachers,
-``distill_config`` in mop_core.distill.distiller, ...); mop_core.study_params checks the whole file.
+``distill_config`` in mop_core.distill.distiller, ...); mop_core.experiment.study_params checks the whole file.
 This module imports no training code, so a stage that reads the grid depends on no learner's code.
 
 A *pairing* names the dataset level of each study task's teacher, joined by ``+`` in task order
@@ -19,14 +19,14 @@ from typing import Any, Mapping
 
 from mop_core.config import ConfigError, from_mapping, require, require_unique
 from mop_core.data.hdf5 import LEVELS
-from mop_core.nn import ACTOR_TYPES
-from mop_core.schedule import TrainSchedule
-from mop_core.tasks import check_task_list, get_task, substitute_base
-from mop_core.variants import OFFLINE_DATA, SHIFT_CORRECTIONS
+from mop_core.experiment.variants import OFFLINE_DATA, SHIFT_CORRECTIONS
+from mop_core.learning.nn import ACTOR_TYPES
+from mop_core.learning.schedule import TrainSchedule
+from mop_core.walker.tasks import check_task_list, get_task, substitute_base
 
 SECTIONS = ("study", "collect", "relabel", "train_teachers", "train_multitask", "distill", "common_structure",
             "data_sharing", "state_shift", "eval", "shared_computation")
-RANKING_LOSS_NAMES = ("pairwise", "listwise", "approx_ndcg")  # mop_core.ranking.RANKING_LOSSES (tested equal)
+RANKING_LOSS_NAMES = ("pairwise", "listwise", "approx_ndcg")  # mop_core.distill.ranking.RANKING_LOSSES (tested equal)
 
 
 def require_widths(widths: tuple[int, ...], key: str) -> None:
@@ -132,7 +132,7 @@ class StructureGrid:
                 "a pair of single-task students)", list(self.single_task))
 
 
-SHARING_TEACHERS = ("ds", "oqs")  # mop_core.runs.SHARING_KINDS (tested equal)
+SHARING_TEACHERS = ("ds", "oqs")  # mop_core.experiment.runs.SHARING_KINDS (tested equal)
 SHARING_STUDENTS = {"ds": "ds", "oqs_own": "oqs", "oqs_target": "oqs"}  # student variant -> teachers it needs
 # the students of a substituted task set: MOP's (its substitute's own teacher, on D_{base->substitute}, trains
 # with the OQS teachers) and the data-sharing ones
@@ -366,7 +366,7 @@ def sharing_grid(params: Mapping[str, Any], study: StudyConfig) -> SharingGrid:
 
 def distill_grid(params: Mapping[str, Any], study: StudyConfig, losses: Mapping[str, str]) -> DistillGrid:
     """The distill section's grid; ``losses``: the known loss names and the teacher actor type each
-    distils (mop_core.catalogue.LOSS_ACTORS, from the loss table)."""
+    distils (mop_core.experiment.catalogue.LOSS_ACTORS, from the loss table)."""
     raw = section(params, "distill")
     grid = {k: raw.get(k) for k in DISTILL_GRID_KEYS}
     for key in ("losses", "pairings", "seeds"):

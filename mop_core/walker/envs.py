@@ -21,8 +21,8 @@ from typing import Any, Sequence
 import mujoco
 import numpy as np
 
-from mop_core.runtime import step_threads
-from mop_core.tasks import WalkerTask, get_task
+from mop_core.learning.runtime import step_threads
+from mop_core.walker.tasks import WalkerTask, get_task
 
 OBS_DIM = 24
 ACT_DIM = 6
@@ -185,7 +185,7 @@ _POOL_THREADS = 0
 
 
 def _pool() -> ThreadPoolExecutor:
-    """The threads a VectorWalkerEnv steps its members with: :func:`mop_core.runtime.step_threads` of them."""
+    """The threads a VectorWalkerEnv steps its members with: :func:`mop_core.learning.runtime.step_threads` of them."""
     global _POOL, _POOL_THREADS
     if _POOL is not None and _POOL_THREADS != step_threads():
         _POOL.shutdown()
@@ -223,7 +223,7 @@ class VectorWalkerEnv:
     for bit :class:`WalkerEnv`'s dm_control step's over whole episodes, rewards equal to the last
     place (the formula vs dm_control's ``tolerance``; tested), with dm_control's per-step Python (named indexing,
     the observation dict, the reward's tolerance calls) skipped, and the members stepped in
-    ``mop_core.runtime.step_threads()`` threads (benchmarks/bench_collect.py measures both).
+    ``mop_core.learning.runtime.step_threads()`` threads (benchmarks/bench_collect.py measures both).
     """
 
     def __init__(self, task: str | WalkerTask, seeds: Sequence[int], episode_length: int = EPISODE_LENGTH):

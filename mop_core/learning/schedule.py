@@ -1,6 +1,6 @@
 """The schedule of an offline learner (PBRL teachers, the multi-task baseline, students): how long it
 trains and how often it evaluates and checkpoints. A config type of its own so that the study grid
-(mop_core.study) can hold it without importing the training loop."""
+(mop_core.experiment.study) can hold it without importing the training loop."""
 
 from __future__ import annotations
 

@@ -15,15 +15,11 @@ import dataclasses
 from typing import Any, Mapping
 
 from mop_core.agents.pbrl import PBRLConfig
-from mop_core.catalogue import LOSS_ACTORS, shift_variants, structure_variants
 from mop_core.collect import CollectConfig, collect_configs
 from mop_core.config import ConfigError, keys_under, require
 from mop_core.distill.config import DistillConfig, distill_config
-from mop_core.relabel import RelabelConfig
-from mop_core.representations.shared_computation import SharedComputationConfig, shared_computation_config
-from mop_core.shift.compose import ComposeConfig, compose_config
-from mop_core.shift.study import measure_config
-from mop_core.study import (
+from mop_core.experiment.catalogue import LOSS_ACTORS, shift_variants, structure_variants
+from mop_core.experiment.study import (
     DISTILL_GRID_KEYS,
     SECTIONS,
     EvalConfig,
@@ -40,8 +36,12 @@ from mop_core.study import (
     teacher_grid,
     typed_section,
 )
-from mop_core.tasks import get_task
+from mop_core.relabel import RelabelConfig
+from mop_core.representations.shared_computation import SharedComputationConfig, shared_computation_config
+from mop_core.shift.compose import ComposeConfig, compose_config
+from mop_core.shift.study import measure_config
 from mop_core.teachers import teacher_config
+from mop_core.walker.tasks import get_task
 
 
 def _fields(config_type: type) -> frozenset[str]:

@@ -18,7 +18,7 @@ from mop_core.data.hdf5 import LEVELS
 @dataclass(frozen=True)
 class RunPaths:
     """Where a training run writes: the final checkpoint, its metrics, its curve, the resume file, and
-    its timing record (seconds and machine facts, :mod:`mop_core.timings`; None: not written)."""
+    its timing record (seconds and machine facts, :mod:`mop_core.storage.timings`; None: not written)."""
 
     checkpoint: Path
     metrics: Path
