@@ -55,7 +55,6 @@ class TeacherConfig:
     episode_length: int = 1000
 
 
-
 def teacher_config(params: Mapping[str, Any], study: StudyConfig, actor: str = "deterministic") -> TeacherConfig:
     """How one teacher of the params' train_teachers section trains (and the multi-task baseline, with
     the same settings, as the thesis does)."""
@@ -384,11 +383,6 @@ class MultiTaskPolicy:
         if task not in self.tasks:
             raise ValueError(f"task: expected one of the baseline's tasks {self.tasks}, got {task!r}")
         return numpy_policy(self.actor, torch.device("cpu"), self.tasks.index(task), len(self.tasks))
-
-
-def load_multitask(path: str | Path) -> MultiTaskPolicy:
-    """Rebuild the baseline's actor from a ``train_multitask`` checkpoint."""
-    return multitask_from_checkpoint(load_checkpoint(path, MULTITASK_KIND))
 
 
 def multitask_from_checkpoint(payload: dict) -> MultiTaskPolicy:

@@ -115,7 +115,3 @@ LOSSES: dict[str, Loss] = {
 }
 
 
-def get_loss(name: str, key: str = "loss") -> Loss:
-    if name not in LOSSES:
-        raise ValueError(f"{key}: expected one of {tuple(LOSSES)}, got {name!r}")
-    return LOSSES[name]

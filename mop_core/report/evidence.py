@@ -151,10 +151,3 @@ class Evidence:
                if key in r.metrics.get("per_state_tau", {}).get(at, {})}
         return out or None
 
-    def untrained_tau(self, group: str, layer: int, measure: str = "per_state_tau_a") -> float | None:
-        """shared_computation's untrained copy of ``group`` (one network): its tau at ``layer``."""
-        summary = (self.results.shared or {}).get("groups", {}).get(group, {}).get("untrained")
-        if not summary:
-            return None
-        cell = next(iter(summary["pairs"].values()))[f"layer{layer}"][measure]
-        return float(cell["mean"] if isinstance(cell, Mapping) else cell)
