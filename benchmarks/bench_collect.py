@@ -65,7 +65,7 @@ def _actor() -> torch.nn.Module:
 
 
 class DmControlVectorEnv(VectorWalkerEnv):
-    """The batched env as it was up to issue 15: each member stepped through dm_control's own step."""
+    """The batched env as it was before batched stepping: each member stepped through dm_control's own step."""
 
     def step(self, actions: np.ndarray) -> VectorStep:
         steps = [env.step(a) for env, a in zip(self.envs, actions)]
@@ -155,7 +155,7 @@ def main() -> None:
     one_policy = vector_env_steps_per_second(num_envs=1, steps=1000)
     print(f"one env + a 256x256 policy per step:        {one_policy:10,.0f} steps/s")
     before = vector_env_steps_per_second(env_class=DmControlVectorEnv)
-    print(f"16 envs, dm_control steps (before issue 16): {before:10,.0f} steps/s  ({before / one_policy:.2f}x one env "
+    print(f"16 envs, dm_control steps (the old path): {before:10,.0f} steps/s  ({before / one_policy:.2f}x one env "
           f"+ policy)")
     for threads in (1, 2):
         vector = vector_env_steps_per_second(threads=threads)

@@ -1,6 +1,6 @@
-"""Speed of the state-shift measures (mop_core/shift/measures.py, issue 18 part 4), measured in one run here.
+"""Speed of the state-shift measures (mop_core/shift/measures.py), measured in one run here.
 
-Prints, for two sets of ``--states`` 24-float states (the walker's observation size; issue 18's target:
+Prints, for two sets of ``--states`` 24-float states (the walker's observation size; the target:
 20k x 20k in under a minute on 2 cores, all measures together):
 - seconds of the kNN KL estimate (k = 1) and of its split-half null;
 - seconds of the classifier two-sample test (train + held-out AUC) and of the density ratio on the

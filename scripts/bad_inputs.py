@@ -1,4 +1,4 @@
-"""Try bad inputs against every stage of a tiny study and count how each is answered (issue 12).
+"""Try bad inputs against every stage of a tiny study and count how each is answered.
 
     python scripts/bad_inputs.py [--workspace DIR] [--keep] [--json OUT]
 

@@ -565,7 +565,7 @@ def test_data_sharing_students_learn_every_task_on_the_union(tiny_teachers, tmp_
     assert [s["states"] for s in checkpoint["states"]] == [n, n] and "q_switch" not in metrics
 
 
-# ---- state-shift corrections (thesis 5.3; issue 18 parts 5-6) ------------------------------------------
+# ---- state-shift corrections (thesis 5.3) ------------------------------------------
 def test_weighted_states_are_drawn_in_proportion_to_their_weight():
     targets = _targets(1, gaussian=False, n=50)
     weights = torch.zeros(50)

@@ -1,6 +1,6 @@
-"""Faults a demanding user meets (issue 12): damaged or mismatched files, NaNs, full disks, leftover
-temporary files, concurrent and orphaned processes. Each case failed silently, or with an error
-that did not name its file, before issue 12."""
+"""Faults a demanding user meets: damaged or mismatched files, NaNs, full disks, leftover
+temporary files, concurrent and orphaned processes. Each case once failed silently, or with an
+error that did not name its file."""
 
 from __future__ import annotations
 

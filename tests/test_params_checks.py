@@ -1,5 +1,5 @@
 """The whole params file is checked before any compute (mop_core/experiment/study_params.py): every bad value
-below was accepted silently before issue 12, each now fails with one line naming its key."""
+below was once accepted silently; each now fails with one line naming its key."""
 
 from __future__ import annotations
 

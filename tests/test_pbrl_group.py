@@ -1,4 +1,4 @@
-"""A group of R PBRL runs equals the R runs trained alone (issue 16, part 2)."""
+"""A group of R PBRL runs equals the R runs trained alone."""
 
 from __future__ import annotations
 

@@ -453,7 +453,7 @@ def test_each_parameter_section_invalidates_only_its_stages(repo):
 
 
 def test_a_changed_teacher_makes_only_its_own_students_stale(repo):
-    """Each distill entry depends on its student_inputs record, not on every teacher (issue 13)."""
+    """Each distill entry depends on its student_inputs record, not on every teacher."""
     import torch
 
     # only the KL student learns from it
@@ -600,7 +600,7 @@ def test_bad_parameter_fails_before_compute_and_names_the_key(repo, tmp_path):
 
 def test_a_bad_param_stops_dvc_repro_before_any_output_is_deleted(repo):
     """DVC deletes a stage's outputs before its command runs; the params stage fails first, so a typo
-    anywhere costs nothing (before issue 12 this deleted distill's checkpoints and cache: false metrics)."""
+    anywhere costs nothing (once, this deleted distill's checkpoints and cache: false metrics)."""
     original = (repo / "params.yaml").read_text()
     outputs = [repo / "data" / "students" / "mse-medium" / "mse-medium-0.pt", repo / "results" / "students" /
                "metrics" / "mse-medium" / "mse-medium-0.json", repo / "results" / "eval" / "metrics.json",

@@ -174,7 +174,7 @@ def test_visited_states_are_the_students_own_rollouts_in_any_number_of_processes
 
 
 def test_rollouts_follow_the_checkpoints_task_order_not_the_studys(tmp_path):
-    """Issue 12: measure_student pairs states[i] with task id i, so a study whose ``study.tasks`` lists
+    """measure_student pairs states[i] with task id i, so a study whose ``study.tasks`` lists
     the tasks in another order than the student was trained with must still roll out, per student,
     in the checkpoint's order (it swapped the tasks' activations before); another set is refused."""
     first = tmp_path / "first.pt"

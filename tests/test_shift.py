@@ -1,4 +1,4 @@
-"""mop_core/shift/measures.py (issue 18 part 4): the kNN KL estimator against Gaussians of known KL in 2, 8 and 24
+"""mop_core/shift/measures.py: the kNN KL estimator against Gaussians of known KL in 2, 8 and 24
 dimensions and on identical distributions, its split-half null and bootstrap interval; the classifier
 two-sample test's AUC and density ratio against the Gaussians' own; every split by whole episodes on a
 trajectory-correlated process."""

@@ -1,4 +1,4 @@
-"""A group of R independent PBRL runs of one configuration trained as one vectorised model (issue 16).
+"""A group of R independent PBRL runs of one configuration trained as one vectorised model.
 
 Run r keeps everything a run alone has: its initialisation (the weights :class:`~mop_core.agents.pbrl.PBRL`
 draws with its seed), its random generator (target smoothing, OOD actions, Gaussian samples, drawn in

@@ -1,4 +1,4 @@
-"""Distillation that corrects for the state distribution shift (thesis 5.3; issue 18 parts 5-6).
+"""Distillation that corrects for the state distribution shift (thesis 5.3).
 
 The student learns on dataset states s ~ D_i but acts on the states it visits itself, close to the
 teacher's own T_i when it imitates well. Two corrections, each a ``distill.correction``:

@@ -139,7 +139,7 @@ def action_error(student: Student, task_index: int, states: torch.Tensor, teache
 
 def action_errors(student: Student, teachers: Sequence[Teacher], targets: Sequence[TaskStates],
                   visited: Sequence[np.ndarray], device: torch.device) -> list[dict[str, float]]:
-    """Where the student goes wrong (issue 18 part 5), per task: its action error to its targets on
+    """Where the student goes wrong, per task: its action error to its targets on
     its training states (``train``: the dataset's, before any aggregation), on held-out states of
     the same data (``heldout``, when it has them) and to its teacher on the states it visited itself in
     the final evaluation (``visited``: what it meets when it acts)."""

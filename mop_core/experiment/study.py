@@ -183,7 +183,7 @@ class ShiftGrid:
     each (5.2.4, Figure 5.8; the widest one the distill student's is 5.2.3's online-vs-offline
     comparison on the online dataset) and on ``data_percents``% of each task's offline dataset; and
     the shift between every dataset and the teacher's visited states (``measure``: mop_core.shift.measures);
-    and the students that correct for the shift (thesis 5.3, issue 18 part 6: ``corrections``,
+    and the students that correct for the shift (thesis 5.3: ``corrections``,
     reweight and the DAgger reference, on each of ``correction_datasets``, a composed dataset or
     ``offline``, at each of ``correction_widths``; their settings: distill.reweight, distill.dagger).
     Empty lists train none. The data and measure settings are typed where they are used

@@ -93,7 +93,7 @@ def configure_compute(threads: int) -> None:
     Subnormals (|x| < 1.2e-38 in float32) take a slow microcode path on x86 CPUs, tens of times a
     normal operation's cost. They appear as training saturates: a trained ranking-regularised
     student's ``sigmoid`` tails and Adam's second moments of near-zero gradients. Measured in the
-    issue-17 study: the pairwise-ranking group's step went from ~20 ms at the start to ~70 ms late
+    ranking study: the pairwise-ranking group's step went from ~20 ms at the start to ~70 ms late
     in training, ApproxNDCG's doubled. Flushing them changes values only below float32's normal
     range; runs stay deterministic."""
     set_threads(threads)

@@ -13,7 +13,7 @@
    Both Kendall variants are recorded: tau-a (the thesis's formula and the reference code's, so
    Table 6.1/6.2 stay comparable) and tau-b (corrects for ties: ReLU zeros tie many neurons).
    ``zero_fraction`` records how many activations are exactly zero, i.e. how much the two differ.
-   - *beyond CKA* (issue 17; linear CKA is 0.94-1.0 for every student and its untrained copy here):
+   - *beyond CKA* (linear CKA is 0.94-1.0 for every student and its untrained copy here):
      orthogonal Procrustes similarity, debiased CKA, per-neuron task selectivity (mean, and the
      share of neurons the id explains >= half of), and per task the dead / dormant share of each
      layer (mop_core.representations.similarity).

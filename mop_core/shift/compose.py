@@ -23,8 +23,8 @@ dataset is compared with teacher states it does not contain).
 
 Each dataset also gets ``heldout_episodes`` held-out episodes of the same composition
 (``<name>_heldout``: a train/validation split of whole episodes, as OGBench ships), from three more
-pools on their own seeds: the student's action error on them is its error off its training states
-(issue 18 part 5). Their teacher episodes are ``round(teacher_share * heldout_episodes)``, which may be
+pools on their own seeds: the student's action error on them is its error off its training states.
+Their teacher episodes are ``round(teacher_share * heldout_episodes)``, which may be
 0 (random99 at 10 held-out episodes: the expected 0.1 rounds to none).
 """
 

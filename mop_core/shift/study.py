@@ -1,4 +1,4 @@
-"""The state_shift stage's work (thesis 5.2, issue 18): how far each dataset's states lie from the
+"""The state_shift stage's work (thesis 5.2): how far each dataset's states lie from the
 states the teacher visits, measured (mop_core.shift.measures), next to how the students distilled on them do.
 
 1. :func:`measure_shift`: per study task, every dataset (the collect levels, the composed datasets)
