@@ -1,7 +1,13 @@
 """mop_core: the library behind the MOP pipeline (Multi-task Offline Policy distillation).
 
-Stage scripts in ``stages/`` parse ``params.yaml`` into the typed configs defined here and call
-one function each; nothing in this package reads ``params.yaml`` or invents output paths.
+Wings by concern: ``walker`` (tasks, batched MuJoCo, rollouts), ``data`` (HDF5 datasets, buffers),
+``storage`` (file layout, atomic writes, checkpoints, timings), ``learning`` (networks, the training
+loop, process settings), ``agents`` (TD3, PBRL, the multi-task baseline), ``distill`` (students and
+their training), ``experiment`` (the params grid, run kinds, student variants, the catalogue),
+``shift`` (thesis 5.2-5.3), ``representations`` (thesis 6.2) and ``report`` (the report and its
+verdicts); the stage-level modules (collect, relabel, teachers, evaluation, ...) sit at the top.
+Stage scripts in ``stages/`` read ``params.yaml`` and ask the catalogue; nothing in this package
+reads ``params.yaml``: it receives the parsed mapping.
 """
 
 __version__ = "0.1.0"

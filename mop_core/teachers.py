@@ -22,7 +22,7 @@ from mop_core.agents.pbrl_group import PBRLGroup, stack_batches
 from mop_core.agents.pbrl_multitask import MultiTaskPBRL
 from mop_core.config import ConfigError, InputFileError, from_mapping, require, to_dict
 from mop_core.data.buffer import TransitionTensors
-from mop_core.data.hdf5 import read_dataset, read_json, read_relabel
+from mop_core.data.hdf5 import read_dataset, read_relabel
 from mop_core.experiment.runs import TeacherRun, relabelled_teacher_runs, sharing_teacher_entry, teacher_entry
 from mop_core.experiment.study import StudyConfig, section, sharing_grid, study_config, teacher_grid
 from mop_core.learning.nn import EnsembleCritic, numpy_policy
@@ -37,6 +37,7 @@ from mop_core.learning.training import (
     train_loop,
 )
 from mop_core.storage.artifacts import load_checkpoint, state_sha256
+from mop_core.storage.files import read_json
 from mop_core.storage.timings import per_second, write_timing
 from mop_core.walker.envs import ACT_DIM, OBS_DIM
 from mop_core.walker.rollout import episode_returns, trajectory_returns

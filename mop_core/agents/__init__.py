@@ -1,1 +1,2 @@
-"""Agents: TD3 (behaviour policies); PBRL teachers and the naive multi-task baseline follow."""
+"""Agents: TD3 (the behaviour policies), PBRL (the teachers, also as a vectorised group of runs) and the
+naive multi-task PBRL baseline."""

@@ -5,15 +5,13 @@ from mop_core.data.hdf5 import (
                                 LEVELS,
                                 Dataset,
                                 DatasetError,
-                                atomic_path,
                                 read_dataset,
                                 read_dataset_attrs,
-                                read_json,
                                 read_relabel,
                                 write_dataset,
-                                write_json,
                                 write_relabel,
 )
+from mop_core.storage.files import atomic_path, read_json, write_json
 
 __all__ = ["Batch", "Dataset", "DatasetError", "LEVELS", "ReplayBuffer", "TransitionTensors", "atomic_path",
            "read_dataset", "read_dataset_attrs", "read_json", "read_relabel", "write_dataset", "write_json",

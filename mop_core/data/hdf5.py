@@ -32,7 +32,7 @@ import h5py
 import numpy as np
 
 from mop_core.config import InputFileError
-from mop_core.storage.files import atomic_path, read_json, write_json  # noqa: F401  (re-exported by mop_core.data)
+from mop_core.storage.files import atomic_path
 from mop_core.walker.tasks import REWARD_FEATURES
 
 FORMAT_VERSION = 1
