@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 import torch
 
-from mop_core import runtime
 from mop_core.config import ConfigError
+from mop_core.learning import runtime
 from mop_core.learning.runtime import (
     derive_seeds,
     parallel_map,

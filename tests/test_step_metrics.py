@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from mop_core import step_metrics
+from mop_core.learning import step_metrics
 from mop_core.learning.runtime import TrainingDivergedError
 from mop_core.learning.step_metrics import StepMetrics, as_floats
 
