@@ -1,4 +1,4 @@
-"""Training rates at a profile's network sizes on one device: what ``python -m mop_core.experiment.plan`` turns
+"""Training rates at a profile's network sizes on one device: what ``python -m mop_core.plan`` turns
 into the profile's cost.
 
 Measures in one process (after a warm-up; on CUDA every timed block ends with a synchronize):
@@ -11,7 +11,7 @@ Measures in one process (after a warm-up; on CUDA every timed block ends with a 
   R runs of 8 cost R / (8 * rate_8) seconds per step each;
 - control steps/s of ``eval.rollout_envs`` walkers stepped together under a batched student policy.
 
-Writes the numbers as JSON (``--out``) with the device's name; ``mop_core.experiment.plan`` reads that file.
+Writes the numbers as JSON (``--out``) with the device's name; ``mop_core.plan`` reads that file.
 
 Run: ``python benchmarks/bench_rates.py --profile profiles/thesis.yaml --device cuda --out rates.json``
 (``--quick`` times fewer updates: a smoke test).

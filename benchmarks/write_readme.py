@@ -164,13 +164,13 @@ def gpu_section(directory: Path) -> str:
         "last lines:", "", "```", read("tests.log", 20), "```", "",
         "Rates at the thesis profile's sizes (`benchmarks/bench_rates.py`; student rates are group updates/s "
         "for R runs):", "", "```json", read("rates.json"), "```", "",
-        "The thesis profile's estimated cost (`python -m mop_core.experiment.plan profiles/thesis.yaml --rates "
+        "The thesis profile's estimated cost (`python -m mop_core.plan profiles/thesis.yaml --rates "
         "benchmarks/gpu/rates.json`: the schedules times these rates; the script writes it as plan.md):", "",
         read("plan.md"), "",
         "The shortened thesis profile (every schedule at 0.1%, one level; `repro.log` beside these files), measured "
         "stage times:", "",
         read("short_timings.md"), "",
-        "and what `mop_core.experiment.plan` estimates for that shortened profile from the rates "
+        "and what `mop_core.plan` estimates for that shortened profile from the rates "
         "above (per-run process "
         "start-up and file writes are not in the estimate; a stage missing above did not finish in the time limit):",
         "",

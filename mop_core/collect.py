@@ -30,7 +30,7 @@ from tqdm import tqdm
 from mop_core.agents.td3 import TD3, TD3Config, actor_from_checkpoint
 from mop_core.config import from_mapping, require, to_dict
 from mop_core.data.buffer import ReplayBuffer
-from mop_core.data.hdf5 import LEVELS, write_dataset
+from mop_core.data.hdf5 import write_dataset
 from mop_core.experiment.study import StudyConfig, section
 from mop_core.learning.nn import numpy_policy
 from mop_core.learning.runtime import TrainingDivergedError, configure_compute, derive_seeds, die_with_parent
@@ -38,7 +38,7 @@ from mop_core.learning.step_metrics import StepMetrics
 from mop_core.learning.training import RESUME_KIND, non_finite_tensor, run_fingerprint, try_resume
 from mop_core.storage.artifacts import save_checkpoint, state_sha256, write_curve
 from mop_core.storage.files import write_json
-from mop_core.storage.layout import CollectPaths
+from mop_core.storage.layout import LEVELS, CollectPaths
 from mop_core.walker.envs import ACT_DIM, OBS_DIM, PHYSICS_DIM, WalkerEnv
 from mop_core.walker.rollout import collect_episodes, episode_returns, trajectory_returns
 from mop_core.walker.tasks import REWARD_FEATURES, get_task

@@ -6,7 +6,7 @@ Every student of the catalogue acts online on each of its tasks (``shared_comput
 episodes per task; the thesis used 1000); its post-ReLU activations on the visited states are
 compared across task ids: per state (Kendall's tau-a and tau-b, mean +- sd over states), on task
 averages and by linear CKA, next to an untrained copy of each group's first student
-(mop_core/representations/study.py). Writes
+(mop_core/shared_study.py). Writes
 - results/shared_computation/metrics.json: Table 6.1 per (loss, pairing) group (mean over the
   group's seeds) and per student (dvc metrics);
 - results/shared_computation/students/<student>.json: everything measured, incl. the mean activations;
@@ -24,8 +24,8 @@ from mop_core.data import write_json
 from mop_core.experiment.catalogue import build_catalogue
 from mop_core.experiment.study import study_config
 from mop_core.learning.runtime import progress_enabled
-from mop_core.representations.shared_computation import shared_computation_config
-from mop_core.representations.study import measure_catalogue, print_summary, tau_during_training_figure
+from mop_core.shared_computation import shared_computation_config
+from mop_core.shared_study import measure_catalogue, print_summary, tau_during_training_figure
 from mop_core.storage.layout import stage_dir, timing_file
 from mop_core.storage.timings import write_timing
 

@@ -115,7 +115,7 @@ def test_medium_by_target_return(tiny_collect_config, tmp_path):
 
 def test_a_target_return_per_task_is_read_for_its_task_and_named_when_missing(tiny_params):
     from mop_core.config import ConfigError, from_mapping
-    from mop_core.experiment.study_params import check_params
+    from mop_core.study_params import check_params
 
     raw = dict(tiny_params["collect"]["schedule"]) | {"medium_target_return": {"stand": 458.85, "walk": 681}}
     schedule = from_mapping(ScheduleConfig, raw, "collect.schedule")

@@ -71,3 +71,35 @@ def test_the_longest_import_chain_is_bounded():
 
     worst = max((chain(name) for name in GRAPH), key=len)
     assert len(worst) <= LONGEST_CHAIN, f"{len(worst)} modules: {' -> '.join(worst)}"
+
+
+def wing(name: str) -> str:
+    """A module's wing: its subpackage of mop_core (``mop_core.distill``), a top-level module itself, or
+    ``stages``."""
+    parts = name.split(".")
+    if parts[0] == "stages":
+        return "stages"
+    return ".".join(parts[:2]) if len(parts) > 2 or (ROOT / "mop_core" / parts[-1]).is_dir() else name
+
+
+def test_the_wings_are_layered():
+    """No import from a lower wing back up: the graph of wings (subpackages, top-level modules) has no
+    cycle, so each wing sits above the ones it imports."""
+    edges: dict[str, set[str]] = {}
+    for name, imported in GRAPH.items():
+        edges.setdefault(wing(name), set()).update(wing(other) for other in imported if wing(other) != wing(name))
+    both = sorted((a, b) for a in edges for b in edges[a] if a < b and a in edges.get(b, set()))
+    assert not both, f"wings that import each other: {both}"
+    state: dict[str, int] = {}
+
+    def visit(node: str, stack: list[str]) -> None:
+        state[node] = 1
+        for other in sorted(edges.get(node, ())):
+            assert state.get(other) != 1, f"wing cycle: {' -> '.join(stack + [node, other])}"
+            if other not in state:
+                visit(other, stack + [node])
+        state[node] = 2
+
+    for node in sorted(edges):
+        if node not in state:
+            visit(node, [])

@@ -1,4 +1,4 @@
-"""The whole params file is checked before any compute (mop_core/experiment/study_params.py): every bad value
+"""The whole params file is checked before any compute (mop_core/study_params.py): every bad value
 below was once accepted silently; each now fails with one line naming its key."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import pytest
 from conftest import ROOT
 
 from mop_core.config import ConfigError
-from mop_core.experiment.study_params import check_params
+from mop_core.study_params import check_params
 
 
 def _set(params: dict, key: str, value) -> dict:

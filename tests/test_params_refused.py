@@ -1,4 +1,4 @@
-"""Parameters that mean nothing are refused by the params stage (mop_core/experiment/study_params.py), before any
+"""Parameters that mean nothing are refused by the params stage (mop_core/study_params.py), before any
 compute, with one line naming the key and what was expected: a section or key no stage reads, a
 pairing spelled as an alias of another, and settings that would have no effect in the given study.
 Each case below passed the params stage before (or failed later, naming missing files)."""
@@ -18,7 +18,7 @@ from conftest import ROOT, params_stage
 
 from mop_core.config import ConfigError
 from mop_core.experiment.study import StudyConfig, pairing_levels
-from mop_core.experiment.study_params import check_params
+from mop_core.study_params import check_params
 
 DELETE = object()
 

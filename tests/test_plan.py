@@ -1,4 +1,4 @@
-"""mop_core.experiment.plan: a profile's cost from measured rates (the catalogue's runs), and shortened profiles
+"""mop_core.plan: a profile's cost from measured rates (the catalogue's runs), and shortened profiles
 that still
 run."""
 
@@ -9,10 +9,10 @@ import yaml
 from conftest import ROOT
 
 from mop_core.experiment.catalogue import build_catalogue
-from mop_core.experiment.plan import STUDENT_STAGES, Rates, one_level_grid, scaled_profile, stage_hours
 from mop_core.experiment.study import shift_grid, study_config
-from mop_core.experiment.study_params import check_params
+from mop_core.plan import STUDENT_STAGES, Rates, one_level_grid, scaled_profile, stage_hours
 from mop_core.shift.compose import compose_config
+from mop_core.study_params import check_params
 from mop_core.teachers import teacher_entries
 
 THESIS = yaml.safe_load((ROOT / "profiles" / "thesis.yaml").read_text())

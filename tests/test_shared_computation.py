@@ -13,7 +13,7 @@ from mop_core.distill.checkpoint import STUDENT_KIND, load_student
 from mop_core.distill.config import DistillConfig
 from mop_core.distill.student import Student, StudentConfig
 from mop_core.representations.measures import hidden_activations, kendall_tau, kendall_tau_a, kendall_tau_b, linear_cka
-from mop_core.representations.shared_computation import (
+from mop_core.shared_computation import (
     SharedComputationConfig,
     collect_visited,
     episode_seeds,

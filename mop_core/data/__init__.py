@@ -2,7 +2,6 @@
 
 from mop_core.data.buffer import Batch, ReplayBuffer, TransitionTensors
 from mop_core.data.hdf5 import (
-                                LEVELS,
                                 Dataset,
                                 DatasetError,
                                 read_dataset,
@@ -12,6 +11,7 @@ from mop_core.data.hdf5 import (
                                 write_relabel,
 )
 from mop_core.storage.files import atomic_path, read_json, write_json
+from mop_core.storage.layout import LEVELS
 
 __all__ = ["Batch", "Dataset", "DatasetError", "LEVELS", "ReplayBuffer", "TransitionTensors", "atomic_path",
            "read_dataset", "read_dataset_attrs", "read_json", "read_relabel", "write_dataset", "write_json",

@@ -49,7 +49,6 @@ DATASET_SCHEMA: dict[str, tuple[str, tuple[int, ...], np.dtype]] = {
 }
 FEATURE_PATHS = tuple(f"infos/{name}" for name in REWARD_FEATURES)
 #: Dataset levels (thesis 4.4.3); the ``level`` attribute of every dataset file is one of them.
-LEVELS = ("expert", "medium", "medium_replay")
 REQUIRED_ATTRS = ("task", "level", "seed", "episode_length", "behaviour_sha256", "content_sha256")
 
 

@@ -29,6 +29,8 @@ from typing import Callable, Sequence
 
 import torch
 
+from mop_core.experiment.losses import LOSS_KINDS, LossKind
+
 Q_REDUCTIONS = ("min", "mean")
 
 
@@ -98,20 +100,13 @@ def _kl(x: LossInputs) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 @dataclass(frozen=True)
-class Loss:
-    """A distillation loss and what it needs."""
+class Loss(LossKind):
+    """A distillation loss (:class:`~mop_core.experiment.losses.LossKind`) with its computation."""
 
-    name: str
-    teacher_actor: str  # the PBRL actor type of the teachers it distils: "deterministic" or "gaussian"
-    gaussian_student: bool  # the student has a diagonal Gaussian head (mean, log std)
-    needs_critics: bool  # the teachers' critic ensembles are part of the loss
     per_state: Callable[[LossInputs], tuple[torch.Tensor, torch.Tensor]]  # -> (loss [(R,) B], action [(R,) B, k])
 
 
-LOSSES: dict[str, Loss] = {
-    "mse": Loss("mse", "deterministic", gaussian_student=False, needs_critics=False, per_state=_mse),
-    "q": Loss("q", "deterministic", gaussian_student=False, needs_critics=True, per_state=_q),
-    "kl": Loss("kl", "gaussian", gaussian_student=True, needs_critics=False, per_state=_kl),
-}
+_PER_STATE = {"mse": _mse, "q": _q, "kl": _kl}
+LOSSES: dict[str, Loss] = {name: Loss(**vars(kind), per_state=_PER_STATE[name]) for name, kind in LOSS_KINDS.items()}
 
 

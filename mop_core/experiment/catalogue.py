@@ -4,7 +4,7 @@ policies the eval stage rolls out on which tasks.
 :func:`build_catalogue` makes it from the params' grid (:mod:`mop_core.experiment.study`); every stage and the
 report ask it rather than looping over the params' grids themselves. The run kinds, their names and
 evaluation groups are in :mod:`mop_core.experiment.runs`; a student's teachers follow from the loss table
-(:data:`mop_core.distill.losses.LOSSES`: KL distils Gaussian teachers). A new run kind is a class in
+(:data:`mop_core.experiment.losses.LOSS_KINDS`: KL distils Gaussian teachers). A new run kind is a class in
 mop_core.experiment.runs, its entries in :func:`build_catalogue` and its jobs in :meth:`Catalogue.eval_jobs`.
 """
 
@@ -17,7 +17,7 @@ from typing import Any, Mapping, Sequence
 
 from mop_core.config import InputFileError
 from mop_core.data.hdf5 import read_dataset_attrs
-from mop_core.distill.losses import LOSSES
+from mop_core.experiment.losses import LOSS_KINDS
 from mop_core.experiment.runs import (
     BEHAVIOUR_LEVELS,
     BehaviourRun,
@@ -53,7 +53,7 @@ from mop_core.learning.runtime import derive_seeds
 from mop_core.storage.artifacts import file_sha256
 from mop_core.walker.tasks import data_tasks, substitute_tasks
 
-LOSS_ACTORS = {name: loss.teacher_actor for name, loss in LOSSES.items()}  # what distill_grid checks
+LOSS_ACTORS = {name: loss.teacher_actor for name, loss in LOSS_KINDS.items()}  # what distill_grid checks
 
 
 @dataclass(frozen=True)
@@ -138,7 +138,7 @@ class Catalogue:
         for run in self.multitask:
             jobs += [Job(run.group, run.seed, run.paths.checkpoint, task, task) for task in run.tasks]
         for run in self.students + self.shift_students:
-            sample = sample_gaussian_students and LOSSES[run.loss].gaussian_student
+            sample = sample_gaussian_students and LOSS_KINDS[run.loss].gaussian_student
             jobs += [Job(run.group, run.seed, run.paths.checkpoint, task, task,
                          self.sample_seed(run, task) if sample else None) for task in run.tasks]
         return jobs
@@ -235,7 +235,7 @@ def make_student(loss: str, pairing: str, seed: int, tasks: tuple[str, ...], lev
                  teacher_seed: int, variant: Variant | None = None) -> StudentRun:
     """The student of (loss, pairing, seed[, variant]): per task, the teacher of the pairing's level,
     the loss's actor type and ``teacher_seed``."""
-    actor = LOSSES[loss].teacher_actor
+    actor = LOSS_KINDS[loss].teacher_actor
     return StudentRun(loss, pairing, seed, tuple(TeacherRun(task, level, actor, teacher_seed)
                                                  for task, level in zip(tasks, levels)), variant)
 

@@ -4,7 +4,7 @@ students it trains (the catalogue, mop_core.experiment.catalogue, lists the runs
 A stage reads params.yaml (stages/common.py) and hands the mapping here; nothing here reads a file.
 A bad value raises ConfigError naming its key (``distill.pairings``, ``train_teachers.seeds``).
 Each learner's own settings are typed next to it (``teacher_config`` in mop_core.teachers,
-``distill_config`` in mop_core.distill.distiller, ...); mop_core.experiment.study_params checks the whole file.
+``distill_config`` in mop_core.distill.distiller, ...); mop_core.study_params checks the whole file.
 This module imports no training code, so a stage that reads the grid depends on no learner's code.
 
 A *pairing* names the dataset level of each study task's teacher, joined by ``+`` in task order
@@ -18,10 +18,10 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 from mop_core.config import ConfigError, from_mapping, require, require_unique
-from mop_core.data.hdf5 import LEVELS
 from mop_core.experiment.variants import OFFLINE_DATA, SHIFT_CORRECTIONS
 from mop_core.learning.nn import ACTOR_TYPES
 from mop_core.learning.schedule import TrainSchedule
+from mop_core.storage.layout import LEVELS
 from mop_core.walker.tasks import check_task_list, get_task, substitute_base
 
 SECTIONS = ("study", "collect", "relabel", "train_teachers", "train_multitask", "distill", "common_structure",

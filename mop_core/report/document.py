@@ -16,8 +16,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Mapping, Sequence
 
-from mop_core.data.hdf5 import LEVELS
-from mop_core.distill.losses import LOSSES
+from mop_core.experiment.losses import LOSS_KINDS
 from mop_core.experiment.runs import (
     BEHAVIOUR_LEVELS,
     behaviour_group,
@@ -44,6 +43,7 @@ from mop_core.report.format import (
 from mop_core.report.representations import shared_section
 from mop_core.report.results import Run, StudyResults
 from mop_core.statistics import MIN_SEEDS_FOR_SEED_CI, confidence_interval
+from mop_core.storage.layout import LEVELS
 
 
 # ---- sections --------------------------------------------------------------------------------------
@@ -227,7 +227,7 @@ def teacher_run(results: StudyResults, task: str, group: str) -> dict | None:
 
 def distils(actor: str) -> str:
     """The losses that distil teachers of PBRL actor type ``actor`` (the loss table), e.g. 'MSE and Q'."""
-    return " and ".join(name.upper() for name, loss in LOSSES.items() if loss.teacher_actor == actor)
+    return " and ".join(name.upper() for name, loss in LOSS_KINDS.items() if loss.teacher_actor == actor)
 
 
 def kl_rule_text(results: StudyResults) -> str:
@@ -241,7 +241,7 @@ def kl_rule_text(results: StudyResults) -> str:
 def student_rows(results: StudyResults, loss: str, pairing: str, runs: Sequence[Run]) -> list[list[str]]:
     """Per task: the student group's eval, seed means, normalised score, its teacher run's eval and the ratio."""
     levels = results.pairing_levels.get(pairing, [pairing] * len(results.tasks))
-    actor = LOSSES[loss].teacher_actor
+    actor = LOSS_KINDS[loss].teacher_actor
     rows = []
     for task, level in zip(results.tasks, levels):
         student = eval_entry(results, task, student_group(loss, pairing))
@@ -262,7 +262,7 @@ STUDENT_HEADER = ["loss", "pairing", "task", "teacher level", "seeds", "student 
 
 def student_caption(results: StudyResults, rows: Sequence[Sequence[str]]) -> str:
     students = [eval_entry(results, r[2], student_group(r[0], r[1])) for r in rows]
-    teachers = [teacher_run(results, r[2], teacher_group(r[3], LOSSES[r[0]].teacher_actor)) for r in rows]
+    teachers = [teacher_run(results, r[2], teacher_group(r[3], LOSS_KINDS[r[0]].teacher_actor)) for r in rows]
     return (f"Students: {ci_caption(students)}. Teachers (the run of seed {results.settings.get('teacher_seed', 0)} "
             f"the students learned from): {ci_caption(teachers)}. Student / teacher divides by that run's mean.")
 
@@ -277,7 +277,7 @@ def losses_section(results: StudyResults, figure_dir: Path, link_prefix: str) ->
     student_groups = group_runs(results.students, "loss", "pairing")
     for (loss, pairing), runs in student_groups.items():
         levels = results.pairing_levels.get(pairing, [pairing] * len(results.tasks))
-        actor = LOSSES[loss].teacher_actor
+        actor = LOSS_KINDS[loss].teacher_actor
         for task, level in zip(results.tasks, levels):
             band = seed_band([r.curve for r in runs], f"return_mean_{task}")
             if band:

@@ -6,12 +6,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Mapping
 
-from mop_core.data.hdf5 import LEVELS
 from mop_core.experiment.catalogue import Catalogue
 from mop_core.report.results import Run, StudyResults
 from mop_core.storage.artifacts import read_curve
 from mop_core.storage.files import read_json
-from mop_core.storage.layout import COLLECT_METRICS, RESULTS, dataset_summary_file, stage_dir
+from mop_core.storage.layout import COLLECT_METRICS, LEVELS, RESULTS, dataset_summary_file, stage_dir
 
 
 def read_optional(path: Path) -> dict | None:

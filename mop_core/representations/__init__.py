@@ -1,2 +1,3 @@
-"""What the students' hidden layers share across task ids (thesis 6.2): Kendall tau, CKA, similarity and
-the shared_computation stage."""
+"""How alike two sets of hidden activations are (thesis 6.2): batched Kendall tau-a/tau-b, linear CKA,
+Procrustes, debiased CKA, task selectivity. The shared_computation stage's work over the students is
+mop_core.shared_computation and mop_core.shared_study."""

@@ -12,7 +12,6 @@ from typing import Any, Mapping
 
 from scipy.stats import spearmanr
 
-from mop_core.data import LEVELS, read_json
 from mop_core.experiment.catalogue import Catalogue
 from mop_core.experiment.runs import StudentRun, teacher_group
 from mop_core.experiment.study import pairing_levels, section, shift_grid, study_config
@@ -28,7 +27,8 @@ from mop_core.shift.study import (
     read_states,
     student_table,
 )
-from mop_core.storage.layout import REFERENCE, composed_file, dataset_file
+from mop_core.storage.files import read_json
+from mop_core.storage.layout import LEVELS, REFERENCE, composed_file, dataset_file
 
 
 def describe(variant: Variant | None, width: int) -> dict:

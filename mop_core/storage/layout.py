@@ -12,8 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from mop_core.data.hdf5 import LEVELS
-
 
 @dataclass(frozen=True)
 class RunPaths:
@@ -27,6 +25,7 @@ class RunPaths:
     timing: Path | None = None
 
 
+LEVELS = ("expert", "medium", "medium_replay")  # the dataset levels (D4RL's names) a study's files are named by
 DATA = Path("data")
 RESULTS = Path("results")
 COLLECT_METRICS = RESULTS / "collect" / "metrics.json"

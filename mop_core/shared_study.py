@@ -2,7 +2,7 @@
 (thesis 6.2, Table 6.1, Figures 6.3b and 6.4b), for every student group of a catalogue.
 
 Every student acts online on each of its tasks; its post-ReLU activations on the visited states are
-compared across task ids (:func:`mop_core.representations.shared_computation.measure_student`). Two references: the
+compared across task ids (:func:`mop_core.shared_computation.measure_student`). Two references: the
 same measures of an untrained copy of each group's first student on its states, and of each seed's
 single-task students (``common_structure.single_task``) measured against each other, network i
 standing for task id i (the no-sharing null, group ``mse-single_<pairing>``).
@@ -20,7 +20,7 @@ from mop_core.experiment.catalogue import Catalogue
 from mop_core.experiment.runs import no_sharing_group
 from mop_core.learning.runtime import configure_compute, derive_seeds
 from mop_core.plots import metric_curves, sorted_activations
-from mop_core.representations.shared_computation import (
+from mop_core.shared_computation import (
     TIES_NOTE,
     SharedComputationConfig,
     collect_visited,

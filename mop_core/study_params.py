@@ -37,7 +37,7 @@ from mop_core.experiment.study import (
     typed_section,
 )
 from mop_core.relabel import RelabelConfig
-from mop_core.representations.shared_computation import SharedComputationConfig, shared_computation_config
+from mop_core.shared_computation import SharedComputationConfig, shared_computation_config
 from mop_core.shift.compose import ComposeConfig, compose_config
 from mop_core.shift.study import measure_config
 from mop_core.teachers import teacher_config

@@ -1,7 +1,7 @@
 """What a profile costs: its schedules times measured rates, per stage, in hours on one machine.
 
-    python -m mop_core.experiment.plan profiles/thesis.yaml --rates benchmarks/rates/<device>.json
-    python -m mop_core.experiment.plan profiles/thesis.yaml --scale 0.001 --out short.yaml   # a shortened copy
+    python -m mop_core.plan profiles/thesis.yaml --rates benchmarks/rates/<device>.json
+    python -m mop_core.plan profiles/thesis.yaml --scale 0.001 --out short.yaml   # a shortened copy
 
 The rates file is what ``benchmarks/bench_rates.py`` measured on a device at that profile's sizes
 (TD3, PBRL and student-group updates/s, batched rollout control steps/s). The estimate counts, per
