@@ -242,12 +242,7 @@ def shift_grid(params: Mapping[str, Any], study: StudyConfig) -> ShiftGrid:
     grid = from_mapping(ShiftGrid, section(params, "state_shift"), "state_shift")
     if not (grid.datasets or grid.data_percents or grid.corrections):
         return grid
-    levels = pairing_levels(grid.pairing, study, "state_shift.pairing")
-    pairings = [pairing_levels(str(p), study, "distill.pairings") for p in section(params, "distill").get(
-        "pairings") or []]
-    require(levels in pairings, "state_shift.pairing", f"one of distill.pairings "
-            f"{section(params, 'distill').get('pairings')} (the MOP students its students are compared with)",
-            grid.pairing)
+    require_distill_pairing(params, study, grid.pairing, "state_shift.pairing", "its students")
     actors = section(params, "train_teachers").get("actors", [])
     require("deterministic" in actors, "state_shift", "deterministic teachers in train_teachers.actors (they "
             "compose the datasets; the students are MSE students)", actors)
@@ -320,15 +315,20 @@ def pairing_levels(pairing: str, study: StudyConfig, key: str = "--pairing") -> 
     return levels
 
 
+def require_distill_pairing(params: Mapping[str, Any], study: StudyConfig, pairing: str, key: str, who: str) -> None:
+    """``pairing`` (at ``key``) names the levels of one of distill.pairings: ``who`` are compared with those
+    MOP students."""
+    levels = pairing_levels(pairing, study, key)
+    pairings = [pairing_levels(str(p), study, "distill.pairings") for p in section(params, "distill").get(
+        "pairings") or []]
+    require(levels in pairings, key, f"one of distill.pairings {section(params, 'distill').get('pairings')} "
+            f"(the MOP students {who} are compared with)", pairing)
+
+
 def structure_grid(params: Mapping[str, Any], study: StudyConfig) -> StructureGrid:
     """The common_structure section, its pairing checked against the study's levels and distill.pairings."""
     grid = from_mapping(StructureGrid, section(params, "common_structure"), "common_structure")
-    levels = pairing_levels(grid.pairing, study, "common_structure.pairing")
-    pairings = [pairing_levels(str(p), study, "distill.pairings") for p in section(params, "distill").get(
-        "pairings") or []]
-    require(levels in pairings, "common_structure.pairing", f"one of distill.pairings "
-            f"{section(params, 'distill').get('pairings')} (the MOP students the variants are compared with)",
-            grid.pairing)
+    require_distill_pairing(params, study, grid.pairing, "common_structure.pairing", "the variants")
     for i, task in enumerate(grid.single_task):
         require(task in study.tasks, f"common_structure.single_task[{i}]", f"one of study.tasks {list(study.tasks)}",
                 task)
