@@ -56,6 +56,14 @@ from mop_core.walker.tasks import data_tasks, substitute_tasks
 LOSS_ACTORS = {name: loss.teacher_actor for name, loss in LOSS_KINDS.items()}  # what distill_grid checks
 
 
+def group_by(runs: Sequence[Any], attribute: str) -> dict[str, list]:
+    """``runs`` by the value of one of their attributes (an entry, a group), in the runs' order."""
+    out: dict[str, list] = {}
+    for run in runs:
+        out.setdefault(getattr(run, attribute), []).append(run)
+    return out
+
+
 @dataclass(frozen=True)
 class Job:
     """Roll the policy of ``checkpoint`` (under task id ``task_id`` if it is multi-task) out on
@@ -99,17 +107,11 @@ class Catalogue:
 
     def student_entries(self) -> dict[str, list[StudentRun]]:
         """distill entry (``<loss>-<pairing>``) -> the students it trains together (one per seed)."""
-        entries: dict[str, list[StudentRun]] = {}
-        for run in self.students + self.shift_students:
-            entries.setdefault(run.entry, []).append(run)
-        return entries
+        return group_by(self.students + self.shift_students, "entry")
 
     def student_groups(self) -> dict[str, list[StudentRun]]:
         """group -> its students (one per seed), in grid order."""
-        groups: dict[str, list[StudentRun]] = {}
-        for run in self.students:
-            groups.setdefault(run.group, []).append(run)
-        return groups
+        return group_by(self.students, "group")
 
     def cross_task_teachers(self) -> list[TeacherRun]:
         """The deterministic teachers (seed ``teacher_seed``) evaluated on every other task (thesis 6.4.5)."""
@@ -188,10 +190,7 @@ class Catalogue:
 
     def relabelled_teacher_entries(self) -> dict[str, list[TeacherRun]]:
         """train_shared_teachers entry (``<kind>-<level>-<actor>``) -> the teachers it trains together."""
-        entries: dict[str, list[TeacherRun]] = {}
-        for run in self.relabelled_teachers:
-            entries.setdefault(run.entry, []).append(run)
-        return entries
+        return group_by(self.relabelled_teachers, "entry")
 
     def student_comparisons(self) -> list[tuple[str, str]]:
         """(X, Y) student groups compared head to head: every pair of losses on the same pairing, and
@@ -214,10 +213,7 @@ class Catalogue:
 
     def teacher_entries(self) -> dict[str, list[TeacherRun]]:
         """train_teachers entry (``<level>-<actor>``) -> the teachers it trains together (every task and seed)."""
-        entries: dict[str, list[TeacherRun]] = {}
-        for run in self.teachers:
-            entries.setdefault(run.entry, []).append(run)
-        return entries
+        return group_by(self.teachers, "entry")
 
     def distill_stages(self) -> dict[str, dict[str, list[StudentRun]]]:
         """dvc.yaml distill stage -> its entries (:meth:`student_entries`): ``distill`` for plain MOP, the

@@ -36,6 +36,7 @@ mop_core.experiment.catalogue and its distill stage in dvc.yaml. Nothing parses 
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, ClassVar, TypeVar
 
@@ -48,7 +49,7 @@ OFFLINE_DATA = "offline"  # a correction student's data that is the pairing's co
 
 
 @dataclass(frozen=True)
-class Variant:
+class Variant(ABC):
     """One change to a plain MOP student (a family's base; see the module docstring)."""
 
     family: ClassVar[str]  # registry key
@@ -56,8 +57,9 @@ class Variant:
     section: ClassVar[str]  # the params section that lists its variants
 
     @property
+    @abstractmethod
     def name(self) -> str:
-        raise NotImplementedError
+        """Derived from the fields; the variant's part of its students' names."""
 
     def apply(self, config: "DistillConfig") -> "DistillConfig":
         """The distillation config its students train with: ``config`` (plain MOP's) with its change."""
