@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import copy
 import hashlib
+from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import h5py
 import pytest
@@ -30,7 +32,7 @@ from mop_core.experiment.runs import (
     no_sharing_group,
     representation_group,
 )
-from mop_core.experiment.variants import Ranking, Sharing, SingleTask
+from mop_core.experiment.variants import VARIANTS, Ranking, Sharing, SingleTask, Variant, register_variant
 from mop_core.learning.runtime import derive_seeds
 
 TASKS = ("stand", "walk")
@@ -431,3 +433,32 @@ def test_student_inputs_record_the_teachers_and_datasets_by_content(catalogue, t
         h5.attrs["content_sha256"] = "recollected"
     with pytest.raises(InputFileError, match=r"^data/datasets/stand-medium.hdf5: "):
         check_student_inputs(batch, record, where)
+
+
+def test_a_registered_family_gets_its_students_from_its_grid_without_a_catalogue_change(tiny_params):
+    """The catalogue asks the registry: a family declares its section and keys, and its students, entries
+    and distill stage follow (the dry run of adding a family: variants.py, its grid's key, dvc.yaml)."""
+    @register_variant
+    @dataclass(frozen=True)
+    class Halved(Variant):  # every hidden layer half of ``width`` (reuses common_structure.widths)
+        width: int
+        family: ClassVar[str] = "halved_for_test"
+        stage: ClassVar[str] = "distill_halved"
+        section: ClassVar[str] = "common_structure"
+        keys: ClassVar[tuple[str, ...]] = ("widths",)
+
+        @property
+        def name(self) -> str:
+            return f"half{self.width}"
+
+    try:
+        params = copy.deepcopy(tiny_params)
+        widths = params["common_structure"]["widths"]
+        catalogue = build_catalogue(params)
+    finally:
+        del VARIANTS["halved_for_test"]
+    halved = [run for run in catalogue.students if isinstance(run.variant, Halved)]
+    assert [run.variant.width for run in halved] == [w for w in widths for _ in params["distill"]["seeds"]]
+    pairing = params["common_structure"]["pairing"]
+    assert set(catalogue.distill_stages()["distill_halved"]) == {f"mse-half{w}-{pairing}" for w in widths}
+    assert set(build_catalogue(params).students) < set(catalogue.students)  # unregistered: gone again

@@ -38,17 +38,7 @@ from mop_core.experiment.study import (
     study_config,
     teacher_grid,
 )
-from mop_core.experiment.variants import (
-    SHARING_VARIANTS,
-    Composed,
-    Corrected,
-    Ranking,
-    Sharing,
-    SingleTask,
-    Size,
-    Variant,
-    Width,
-)
+from mop_core.experiment.variants import SHARING_VARIANTS, VARIANTS, Sharing, Variant
 from mop_core.learning.runtime import derive_seeds
 from mop_core.storage.artifacts import file_sha256
 from mop_core.walker.tasks import data_tasks, substitute_tasks
@@ -104,6 +94,10 @@ class Catalogue:
     # the state-shift students (thesis 5.2: composed data x width, dataset size, corrections). The eval
     # stage rolls them out like every policy; the state_shift stage reads their returns from it
     shift_students: tuple[StudentRun, ...] = ()
+    # per study task, the deterministic teacher (seed teacher_seed) of the state_shift pairing's level whose
+    # rollouts compose its datasets (the compose stage's; the state-shift students learn from them); ()
+    # when state_shift.datasets composes none
+    composing_teachers: tuple[TeacherRun, ...] = ()
 
     def student_entries(self) -> dict[str, list[StudentRun]]:
         """distill entry (``<loss>-<pairing>``) -> the students it trains together (one per seed)."""
@@ -269,23 +263,25 @@ def make_structure_student(variant: Variant, pairing: str, seed: int, tasks: tup
     return make_student("mse", pairing, seed, tasks, levels, teacher_seed, variant)
 
 
+def section_variants(section: str, grid: Any) -> tuple[Variant, ...]:
+    """The variants of every registered family of params section ``section`` with keys, from its typed
+    ``grid``: family by family in registration order (dvc.yaml's stage order)."""
+    return tuple(v for family in VARIANTS.values() if family.section == section and family.keys
+                 for v in family.grid(grid))
+
+
 def shift_variants(params: Mapping[str, Any]) -> tuple[str, tuple[Variant, ...]]:
     """The state_shift section's pairing and student variants: per composed dataset every width, the
-    dataset sizes, then per correction, dataset and width the correcting students (dvc.yaml's order)."""
+    dataset sizes, then per correction, dataset and width the correcting students."""
     grid = shift_grid(params, study_config(params))
-    return grid.pairing, (tuple(Composed(d, w) for d in grid.datasets for w in grid.widths)
-                          + tuple(Size(p) for p in grid.data_percents)
-                          + tuple(Corrected(c, d, w) for c in grid.corrections
-                                  for d in grid.correction_datasets for w in grid.correction_widths))
+    return grid.pairing, section_variants("state_shift", grid)
 
 
 def structure_variants(params: Mapping[str, Any]) -> tuple[str, tuple[Variant, ...]]:
     """The common_structure section's pairing and student variants (widths, ranking losses, then the
     single-task students)."""
     grid = structure_grid(params, study_config(params))
-    return grid.pairing, (tuple(Width(w) for w in grid.widths)
-                          + tuple(Ranking(loss) for loss in grid.ranking_losses)
-                          + tuple(SingleTask(task) for task in grid.single_task))
+    return grid.pairing, section_variants("common_structure", grid)
 
 
 def build_catalogue(params: Mapping[str, Any]) -> Catalogue:
@@ -303,6 +299,9 @@ def build_catalogue(params: Mapping[str, Any]) -> Catalogue:
                                              pairing_levels(structure_pairing, study), grid.teacher_seed)
                       for variant in variants for seed in grid.seeds)
     shift_pairing, shift = shift_variants(params)
+    composing = tuple(TeacherRun(task, level, "deterministic", grid.teacher_seed) for task, level in
+                      zip(study.tasks, pairing_levels(shift_pairing, study, "state_shift.pairing"))
+                      ) if shift_grid(params, study).datasets else ()
     shift_students = tuple(make_student("mse", shift_pairing, seed, study.tasks, pairing_levels(shift_pairing, study),
                                         grid.teacher_seed, variant) for variant in shift for seed in grid.seeds)
     sharing = sharing_grid(params, study)
@@ -321,7 +320,7 @@ def build_catalogue(params: Mapping[str, Any]) -> Catalogue:
         multitask=tuple(MultitaskRun(level, seed, study.tasks) for level in multitask.levels
                         for seed in multitask.seeds),
         students=students, teacher_seed=grid.teacher_seed, teacher_actors=teacher.actors,
-        relabelled_teachers=relabelled_teachers, shift_students=shift_students)
+        relabelled_teachers=relabelled_teachers, shift_students=shift_students, composing_teachers=composing)
 
 
 def student_inputs(runs: list[StudentRun]) -> dict:

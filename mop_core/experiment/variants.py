@@ -30,15 +30,17 @@ Families (thesis sections):
 - :class:`Corrected` (5.3): a state-shift correction (reweight, dagger: mop_core.distill.corrections)
   on a composed dataset or the offline one, at width ``width``.
 
-A new family is a class here with ``@register_variant``, its grid in mop_core.experiment.study, its students in
-mop_core.experiment.catalogue and its distill stage in dvc.yaml. Nothing parses a name back: consumers read fields.
+A new family is a class here with ``@register_variant`` and its :attr:`~Variant.keys`, those keys in its section's
+typed grid (mop_core.experiment.study) and in the params files, and its distill stage in dvc.yaml: the catalogue
+makes its students from :meth:`~Variant.grid`. Nothing parses a name back: consumers read fields.
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, ClassVar, TypeVar
+from itertools import product
+from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
 if TYPE_CHECKING:
     from mop_core.distill.config import DistillConfig
@@ -55,6 +57,13 @@ class Variant(ABC):
     family: ClassVar[str]  # registry key
     stage: ClassVar[str]  # the dvc.yaml stage that trains its entries
     section: ClassVar[str]  # the params section that lists its variants
+    keys: ClassVar[tuple[str, ...]] = ()  # the section's keys whose product lists them, in field order
+
+    @classmethod
+    def grid(cls, section_grid: Any) -> tuple["Variant", ...]:
+        """Its variants in ``section_grid`` (its section's typed grid): one per combination of the values of
+        its :attr:`keys`, the first key outermost (the order of its dvc.yaml matrix)."""
+        return tuple(cls(*values) for values in product(*(getattr(section_grid, key) for key in cls.keys)))
 
     @property
     @abstractmethod
@@ -116,6 +125,7 @@ class Width(Variant):
     family: ClassVar[str] = "width"
     stage: ClassVar[str] = "distill_width"
     section: ClassVar[str] = "common_structure"
+    keys: ClassVar[tuple[str, ...]] = ("widths",)
 
     @property
     def name(self) -> str:
@@ -134,6 +144,7 @@ class Ranking(Variant):
     family: ClassVar[str] = "ranking"
     stage: ClassVar[str] = "distill_ranking"
     section: ClassVar[str] = "common_structure"
+    keys: ClassVar[tuple[str, ...]] = ("ranking_losses",)
 
     @property
     def name(self) -> str:
@@ -152,6 +163,7 @@ class SingleTask(Variant):
     family: ClassVar[str] = "single_task"
     stage: ClassVar[str] = "distill_single"
     section: ClassVar[str] = "common_structure"
+    keys: ClassVar[tuple[str, ...]] = ("single_task",)
 
     @property
     def name(self) -> str:
@@ -176,7 +188,8 @@ class Sharing(Variant):
     judge: str = ""
     family: ClassVar[str] = "sharing"
     stage: ClassVar[str] = "distill_sharing"
-    section: ClassVar[str] = "data_sharing"
+    section: ClassVar[str] = "data_sharing"  # no keys: the catalogue makes its students per level and
+    # substitute from SHARING_VARIANTS
 
     def __post_init__(self) -> None:
         if self.kind not in SHARING_KINDS or (self.kind == "oqs") != (self.judge in Q_SWITCH_JUDGES):
@@ -206,6 +219,7 @@ class Composed(Variant):
     family: ClassVar[str] = "composed"
     stage: ClassVar[str] = "distill_composed"
     section: ClassVar[str] = "state_shift"
+    keys: ClassVar[tuple[str, ...]] = ("datasets", "widths")
 
     @property
     def name(self) -> str:
@@ -228,6 +242,7 @@ class Size(Variant):
     family: ClassVar[str] = "size"
     stage: ClassVar[str] = "distill_size"
     section: ClassVar[str] = "state_shift"
+    keys: ClassVar[tuple[str, ...]] = ("data_percents",)
 
     @property
     def name(self) -> str:
@@ -249,6 +264,7 @@ class Corrected(Variant):
     family: ClassVar[str] = "corrected"
     stage: ClassVar[str] = "distill_corrected"
     section: ClassVar[str] = "state_shift"
+    keys: ClassVar[tuple[str, ...]] = ("corrections", "correction_datasets", "correction_widths")
 
     @property
     def name(self) -> str:
