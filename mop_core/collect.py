@@ -25,7 +25,6 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from mop_core.agents.td3 import TD3, TD3Config, actor_from_checkpoint
 from mop_core.config import from_mapping, require, to_dict
@@ -33,9 +32,10 @@ from mop_core.data.buffer import ReplayBuffer
 from mop_core.data.hdf5 import write_dataset
 from mop_core.experiment.study import StudyConfig, section
 from mop_core.learning.nn import numpy_policy
-from mop_core.learning.runtime import TrainingDivergedError, configure_compute, derive_seeds, die_with_parent
-from mop_core.learning.step_metrics import StepMetrics
-from mop_core.learning.training import RESUME_KIND, non_finite_tensor, run_fingerprint, try_resume
+from mop_core.learning.online import fit_online
+from mop_core.learning.resume import run_fingerprint
+from mop_core.learning.runtime import configure_compute, derive_seeds, die_with_parent
+from mop_core.learning.schedule import OnlineSchedule
 from mop_core.storage.artifacts import save_checkpoint, state_sha256, write_curve
 from mop_core.storage.files import write_json
 from mop_core.storage.layout import LEVELS, CollectPaths
@@ -167,17 +167,15 @@ class _Snapshot:
 
 @dataclass
 class _Progress:
-    """What a behaviour run has produced so far besides the learner: curve, snapshots, loss window."""
+    """What a behaviour run has produced besides the learner: the curve and the snapshots so far."""
 
     curve: list[dict] = field(default_factory=list)
     medium: _Snapshot | None = None
     fallback: _Snapshot | None = None  # closest evaluation below the target return so far
-    last_losses: dict = field(default_factory=dict)
 
     def record(self, row: dict, snap: _Snapshot, sched: ScheduleConfig, target: float | None) -> None:
         """Add an evaluation row and choose the medium snapshot (fixed step or first target return)."""
         self.curve.append(row)
-        self.last_losses = {}
         if self.medium is None and snap.gradient_steps < sched.total_steps:
             if target is None:
                 if snap.gradient_steps == sched.medium_step:
@@ -191,7 +189,8 @@ class _Progress:
 def train_behaviour(task: str, config: CollectConfig, seed: int, device: torch.device, progress: bool,
                     position: int = 0, resume: Path | None = None
                     ) -> tuple[_Snapshot, _Snapshot, ReplayBuffer, list[dict]]:
-    """Train TD3 on ``task``; return the medium and expert snapshots, the replay and the curve.
+    """Train TD3 on ``task`` online (mop_core.learning.online.fit_online); return the medium and expert
+    snapshots, the replay and the curve.
 
     With ``resume``, the run writes a resume file at the first episode end after every
     ``checkpoint_every`` gradient steps (learner, optimisers, every generator, the replay, the curve,
@@ -206,72 +205,28 @@ def train_behaviour(task: str, config: CollectConfig, seed: int, device: torch.d
     buffer = ReplayBuffer(sched.warmup_steps + sched.total_steps, OBS_DIM, ACT_DIM, PHYSICS_DIM, len(REWARD_FEATURES))
     eval_seeds = _eval_seeds(seeds["eval"], sched.eval_episodes)
     policy = lambda o: agent.act(o).astype(np.float64)  # noqa: E731
-    fingerprint = run_fingerprint({"task": task, "config": to_dict(config), "seed": seed})
-    run, start, seconds_before = _Progress(), 0, 0.0
-    state = try_resume(resume, fingerprint) if resume is not None else None
-    if state is not None:
-        agent.load_state_dict(state["agent"])
-        sampler.set_state(state["sampler"])
-        rng.bit_generator.state = state["rng"]
-        env.set_random_state(state["env_random"])
-        buffer.load_state_dict(state["buffer"])
-        run, start, seconds_before = state["progress"], state["env_step"], state["seconds"]
-    obs = env.reset()
-    started = time.perf_counter()
-    saved_at = agent.updates
-    losses = StepMetrics(f"collect {task} (TD3)")
-    total_env_steps = sched.warmup_steps + sched.total_steps
-    bar = tqdm(total=sched.total_steps, initial=agent.updates, desc=f"collect {task}", position=position,
-               disable=not progress, mininterval=2.0, unit="upd")
-    for t in range(start, total_env_steps):
-        if t < sched.warmup_steps:
-            action = rng.uniform(-1.0, 1.0, ACT_DIM)
-        else:
-            action = agent.act(obs, config.td3.exploration_noise)
-        step = env.step(action)
-        buffer.add(obs, action, step.reward, step.observation, False, step.timeout, step.physics, step.features)
-        env_random = env.random_state() if step.timeout else None  # before the reset draws the next start
-        obs = env.reset() if step.timeout else step.observation
-        if t < sched.warmup_steps:
-            continue
-        step_losses = agent.update(buffer.sample(config.td3.batch_size, sampler))
-        g = agent.updates
-        losses.add(g, step_losses)
-        bar.update(1)
-        if g % sched.eval_every == 0 or g == sched.total_steps or g == sched.medium_step:
-            run.last_losses = run.last_losses | losses.take_last()
-            returns = episode_returns(policy, task, eval_seeds, config.episode_length)
-            row = {"step": g, "env_step": t + 1, "return_mean": float(returns.mean()),
-                   "return_std": float(returns.std()), "critic_loss": run.last_losses.get("critic_loss", math.nan),
-                   "actor_loss": run.last_losses.get("actor_loss", math.nan)}
-            run.record(row, _Snapshot(agent.actor_state(), g, t + 1, row["return_mean"]), sched,
-                       sched.medium_target(task))
-            bar.set_postfix(ret=f"{row['return_mean']:.0f}")
-        if (resume is not None and step.timeout and g - saved_at >= sched.checkpoint_every
-                and t + 1 < total_env_steps):
-            run.last_losses = run.last_losses | losses.take_last()
-            _save_resume(resume, fingerprint, t + 1, agent, sampler, rng, env_random, buffer, run,
-                         seconds_before + time.perf_counter() - started, f"collect {task} (TD3)")
-            saved_at = g
-    bar.close()
-    expert = _Snapshot(agent.actor_state(), agent.updates, total_env_steps, run.curve[-1]["return_mean"])
+    target = sched.medium_target(task)
+
+    def evaluate(run: _Progress, update: int, env_steps: int, losses: dict) -> float:
+        returns = episode_returns(policy, task, eval_seeds, config.episode_length)
+        row = {"step": update, "env_step": env_steps, "return_mean": float(returns.mean()),
+               "return_std": float(returns.std()), "critic_loss": losses.get("critic_loss", math.nan),
+               "actor_loss": losses.get("actor_loss", math.nan)}
+        run.record(row, _Snapshot(agent.actor_state(), update, env_steps, row["return_mean"]), sched, target)
+        return row["return_mean"]
+
+    schedule = OnlineSchedule(sched.warmup_steps, sched.total_steps, sched.eval_every, sched.checkpoint_every,
+                              extra_evals=(sched.medium_step,))
+    run, _ = fit_online(agent, env, buffer, schedule, act_dim=ACT_DIM, batch_size=config.td3.batch_size,
+                        exploration_noise=config.td3.exploration_noise, warmup_rng=rng, sampler=sampler,
+                        record=_Progress(), evaluate=evaluate, resume=resume,
+                        fingerprint=run_fingerprint({"task": task, "config": to_dict(config), "seed": seed}),
+                        desc=f"collect {task}", progress=progress, position=position)
+    expert = _Snapshot(agent.actor_state(), agent.updates, schedule.env_steps, run.curve[-1]["return_mean"])
     medium = run.medium
     if medium is None:  # target return never reached: the best evaluation below it
         medium = run.fallback if run.fallback is not None else expert
     return medium, expert, buffer, run.curve
-
-
-def _save_resume(path: Path, fingerprint: str, env_step: int, agent: TD3, sampler: torch.Generator,
-                 rng: np.random.Generator, env_random: tuple, buffer: ReplayBuffer, run: _Progress, seconds: float,
-                 desc: str) -> None:
-    agent_state = agent.state_dict()
-    bad = non_finite_tensor(agent_state)
-    if bad is not None:
-        raise TrainingDivergedError(f"{desc}: non-finite weights ({bad}) at step {agent.updates}; stopped")
-    save_checkpoint(path, {"kind": RESUME_KIND, "fingerprint": fingerprint, "step": agent.updates,
-                           "env_step": env_step, "agent": agent_state, "sampler": sampler.get_state(),
-                           "rng": rng.bit_generator.state, "env_random": env_random, "buffer": buffer.state_dict(),
-                           "progress": run, "seconds": seconds})
 
 
 def _dataset_summary(arrays: dict[str, np.ndarray], episode_length: int, behaviour_return: float | None) -> dict:

@@ -23,9 +23,11 @@ from mop_core.agents.pbrl_multitask import MultiTaskPBRL
 from mop_core.config import ConfigError, InputFileError, from_mapping, require, to_dict
 from mop_core.data.buffer import TransitionTensors
 from mop_core.data.hdf5 import read_dataset, read_relabel
-from mop_core.experiment.runs import TeacherRun, relabelled_teacher_runs, sharing_teacher_entry, teacher_entry
-from mop_core.experiment.study import StudyConfig, section, sharing_grid, study_config, teacher_grid
+from mop_core.experiment.catalogue import build_catalogue
+from mop_core.experiment.runs import TeacherRun, sharing_teacher_entry, teacher_entry
+from mop_core.experiment.study import StudyConfig, teacher_grid
 from mop_core.learning.nn import EnsembleCritic, numpy_policy
+from mop_core.learning.resume import run_fingerprint
 from mop_core.learning.runtime import derive_seeds
 from mop_core.learning.schedule import TrainSchedule
 from mop_core.learning.step_metrics import run_key, split_runs
@@ -33,7 +35,6 @@ from mop_core.learning.training import (
     RunPaths,
     finish_run,
     returns_summary,
-    run_fingerprint,
     train_loop,
 )
 from mop_core.storage.artifacts import load_checkpoint, state_sha256
@@ -395,36 +396,14 @@ def multitask_from_checkpoint(payload: dict) -> MultiTaskPolicy:
 
 
 # ---- the teacher stages' runs ------------------------------------------------------------------------
-def teacher_entries(params: Mapping[str, Any], sharing: bool = False) -> dict[str, list[TeacherRun]]:
-    """train_teachers entry (``<level>-<actor>``: every study task and train_teachers seed) -> the teachers
-    it trains as one group; ``sharing``: the train_shared_teachers entries (``<kind>-<level>-deterministic``,
-    seed distill.teacher_seed: mop_core.experiment.runs.relabelled_teacher_runs). The catalogue's ``teachers`` and
-    ``relabelled_teachers`` (mop_core.experiment.catalogue, tested equal), from the study, train_teachers and
-    data_sharing
-    sections alone: a teacher stage neither reads the student sections nor depends on the catalogue's code."""
-    study = study_config(params)
-    if sharing:
-        grid = sharing_grid(params, study)
-        seed = section(params, "distill")["teacher_seed"]
-        runs = [run for level in grid.levels
-                for run in relabelled_teacher_runs(study.tasks, level, grid.teachers, seed, grid.substitutes)]
-    else:
-        teachers = teacher_grid(params)
-        runs = [TeacherRun(task, level, actor, seed) for task in study.tasks for level in study.levels
-                for actor in teachers.actors for seed in teachers.seeds]
-    entries: dict[str, list[TeacherRun]] = {}
-    for run in runs:
-        entries.setdefault(run.entry, []).append(run)
-    return entries
-
-
 def entry_runs(params: Mapping[str, Any], level: str, actor: str, sharing: str | None = None,
                tasks: Sequence[str] | None = None, seeds: Sequence[int] | None = None) -> list[TeacherRun]:
-    """The teachers of one entry (:func:`teacher_entries`: of ``level`` and ``actor``, and of the sharing
+    """The teachers of one entry (the catalogue's teacher_entries: of ``level`` and ``actor``; with the sharing
     kind ``sharing`` if set) among ``tasks`` and ``seeds`` (None: all of the entry's), in the entry's order:
     a subset retrains alone (a group of one: one teacher). An entry, task or seed the study does not
     have is refused, naming its command-line flag."""
-    entries = teacher_entries(params, bool(sharing))
+    catalogue = build_catalogue(params)
+    entries = catalogue.relabelled_teacher_entries() if sharing else catalogue.teacher_entries()
     entry = sharing_teacher_entry(sharing, level, actor) if sharing else teacher_entry(level, actor)
     if entry not in entries:
         flags = "--level/--sharing/--actor" if sharing else "--level/--actor"

@@ -9,16 +9,10 @@ from dataclasses import replace
 import pytest
 import torch
 
+from mop_core.learning.resume import RESUME_KIND, non_finite_tensor, run_fingerprint, try_resume
 from mop_core.learning.runtime import TrainingDivergedError
 from mop_core.learning.schedule import TrainSchedule
-from mop_core.learning.training import (
-    RESUME_KIND,
-    finish_run,
-    non_finite_tensor,
-    run_fingerprint,
-    train_loop,
-    try_resume,
-)
+from mop_core.learning.training import finish_run, train_loop
 from mop_core.storage.artifacts import read_curve, save_checkpoint
 from mop_core.storage.layout import RunPaths
 

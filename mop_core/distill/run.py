@@ -36,10 +36,11 @@ from mop_core.distill.states import (
 from mop_core.experiment.catalogue import check_student_inputs
 from mop_core.experiment.runs import StudentRun
 from mop_core.experiment.variants import Q_SWITCH_JUDGES
+from mop_core.learning.resume import run_fingerprint
 from mop_core.learning.runtime import derive_seeds
 from mop_core.learning.schedule import TrainSchedule
 from mop_core.learning.step_metrics import run_key, split_runs
-from mop_core.learning.training import RunPaths, finish_run, run_fingerprint, train_loop
+from mop_core.learning.training import RunPaths, finish_run, train_loop
 from mop_core.storage.artifacts import read_curve, state_sha256, write_curve
 from mop_core.storage.files import read_json
 from mop_core.storage.timings import per_second, write_timing

@@ -1,12 +1,20 @@
-"""The schedule of an offline learner (PBRL teachers, the multi-task baseline, students): how long it
-trains and how often it evaluates and checkpoints. A config type of its own so that the study grid
-(mop_core.experiment.study) can hold it without importing the training loop."""
+"""The schedules of the study's learners: how long they train and how often they evaluate and
+checkpoint. :class:`TrainSchedule`: an offline learner (PBRL teachers, the multi-task baseline,
+students; mop_core.learning.training.train_loop). :class:`OnlineSchedule`: an online one (collect's
+TD3 behaviour policies; mop_core.learning.online.fit_online). Config types of their own so that the
+study grid (mop_core.experiment.study) can hold them without importing the loops. Both loops ask
+:func:`due` when to evaluate and when to check their weights: every ``every`` steps and at the last."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 from mop_core.config import require
+
+
+def due(step: int, every: int, last: int) -> bool:
+    """A periodic event (an evaluation, a weight check) at ``step``: every ``every`` steps, and at ``last``."""
+    return step % every == 0 or step == last
 
 
 @dataclass(frozen=True)
@@ -24,3 +32,27 @@ class TrainSchedule:
         for name in ("steps", "eval_every", "eval_episodes", "final_eval_episodes", "checkpoint_every",
                      "rollout_envs"):
             require(getattr(self, name) > 0, name, "a positive integer", getattr(self, name))
+
+    def evaluates_at(self, step: int) -> bool:
+        """A learning-curve point after update ``step``."""
+        return due(step, self.eval_every, self.steps)
+
+
+@dataclass(frozen=True)
+class OnlineSchedule:
+    """How an online learner interleaves environment steps and updates: ``warmup_steps`` random
+    actions, then one update per environment step for ``updates`` updates (TD3, thesis 4.4.3)."""
+
+    warmup_steps: int  # uniformly random actions before the first update
+    updates: int  # gradient steps, one per environment step after the warm-up
+    eval_every: int  # updates between learning-curve evaluations
+    checkpoint_every: int  # updates between resume files (each written at the next episode end)
+    extra_evals: tuple[int, ...] = ()  # updates that also evaluate (collect: the medium snapshot's step)
+
+    @property
+    def env_steps(self) -> int:
+        return self.warmup_steps + self.updates
+
+    def evaluates_at(self, update: int) -> bool:
+        """A learning-curve point after update ``update``."""
+        return due(update, self.eval_every, self.updates) or update in self.extra_evals

@@ -1,4 +1,4 @@
-"""The training loop shared by every learner of the study (teachers, baseline, students).
+"""The training loop shared by every offline learner of the study (teachers, baseline, students).
 
 ``train_loop`` runs a learner's update to a fixed number of steps, evaluates it online every
 ``eval_every`` steps (the learning curve) and saves a resume checkpoint every ``checkpoint_every``
@@ -10,8 +10,6 @@ ends with the same weights as an uninterrupted one.
 
 from __future__ import annotations
 
-import hashlib
-import json
 import time
 from pathlib import Path
 from typing import Callable
@@ -20,46 +18,13 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from mop_core.learning.runtime import TrainingDivergedError
-from mop_core.learning.schedule import TrainSchedule
+from mop_core.learning.resume import check_finite, try_resume, write_resume
+from mop_core.learning.schedule import TrainSchedule, due
 from mop_core.learning.step_metrics import StepMetrics
-from mop_core.storage.artifacts import load_checkpoint, save_checkpoint, write_curve
+from mop_core.storage.artifacts import save_checkpoint, write_curve
 from mop_core.storage.files import write_json
 from mop_core.storage.layout import RunPaths
 from mop_core.storage.timings import per_second, write_timing
-
-RESUME_KIND = "training_resume"
-
-
-def run_fingerprint(payload: dict) -> str:
-    return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()
-
-
-def try_resume(path: Path, fingerprint: str) -> dict | None:
-    """The resume state at ``path`` if it belongs to this exact run, else None (a clean restart)."""
-    if not path.is_file():
-        return None
-    try:
-        state = load_checkpoint(path, RESUME_KIND)
-    except Exception as err:  # unreadable or foreign: restart rather than fail
-        print(f"warning: ignoring resume file {path}: {err}")
-        return None
-    if state.get("fingerprint") != fingerprint:
-        print(f"warning: {path} belongs to another configuration or dataset; restarting from step 0")
-        return None
-    return state
-
-
-def non_finite_tensor(state) -> str | None:
-    """The key of the first floating tensor holding NaN or inf in a (nested) state dict, else None."""
-    if isinstance(state, torch.Tensor):
-        return "" if state.is_floating_point() and not torch.isfinite(state).all() else None
-    items = state.items() if isinstance(state, dict) else enumerate(state) if isinstance(state, (list, tuple)) else ()
-    for key, value in items:
-        found = non_finite_tensor(value)
-        if found is not None:
-            return f"{key}.{found}".rstrip(".")
-    return None
 
 
 def train_loop(agent, update: Callable[[], dict], evaluate: Callable[[list[int]], dict[str, float]],
@@ -101,23 +66,19 @@ def train_loop(agent, update: Callable[[], dict], evaluate: Callable[[list[int]]
     for step in range(resumed_from + 1, schedule.steps + 1):
         metrics.add(step, update())
         bar.update(1)
-        if step % schedule.eval_every == 0 or step == schedule.steps:
+        if schedule.evaluates_at(step):
             means = metrics.take()  # before the evaluation: a diverged run stops without evaluating
             episodes = final_seeds if step == schedule.steps and final_seeds is not None else eval_seeds
             row = {"step": step, **evaluate(episodes)} | means
             curve.append(row)
             bar.set_postfix(ret=f"{row['return_mean']:.0f}")
-        if step % schedule.checkpoint_every == 0 or step == schedule.steps:
+        if due(step, schedule.checkpoint_every, schedule.steps):
             metrics.sync()
-            bad = non_finite_tensor(agent.state_dict())
-            if bad is not None:
-                raise TrainingDivergedError(f"{desc}: non-finite weights ({bad}) at step {step}; stopped{kept}")
+            check_finite(agent.state_dict(), desc, step, kept)
         if step % schedule.checkpoint_every == 0 and step < schedule.steps:
-            save_checkpoint(resume, {"kind": RESUME_KIND, "fingerprint": fingerprint, "step": step,
-                                     "agent": agent.state_dict(),
-                                     "sampler": None if sampler is None else sampler.get_state(),
-                                     "curve": curve, "losses": metrics.values,
-                                     "seconds": seconds_before + time.perf_counter() - started})
+            write_resume(resume, fingerprint, step, agent.state_dict(), seconds_before + time.perf_counter() - started,
+                         desc, sampler=None if sampler is None else sampler.get_state(), curve=curve,
+                         losses=metrics.values)
     bar.close()
     return curve, seconds_before + time.perf_counter() - started, resumed_from
 
