@@ -42,12 +42,11 @@ import numpy as np
 from mop_core.config import ConfigError, InputFileError
 from mop_core.data.hdf5 import Dataset, read_dataset, read_relabel
 from mop_core.storage.files import read_json
-from mop_core.storage.layout import DATA, RESULTS, relabel_file
+from mop_core.storage.layout import DATA, EVAL_METRICS, relabel_file
 from mop_core.walker.tasks import REWARD_FEATURES
 
 NAMESPACE = "mop"
 DEFAULT_OUT = DATA / "minari"
-EVAL_METRICS = RESULTS / "eval" / "metrics.json"
 REQUIREMENTS = ["dm-control==1.0.50", "mujoco==3.17.0"]  # what recovering the env needs beside this package
 
 

@@ -41,7 +41,7 @@ import yaml
 from mop_core.experiment.catalogue import build_catalogue
 from mop_core.experiment.runs import StudentRun
 from mop_core.experiment.study import shift_grid, study_config
-from mop_core.shift.compose import compose_config, composing_teachers
+from mop_core.shift.compose import compose_config
 
 
 @dataclass(frozen=True)
@@ -115,7 +115,7 @@ def _compose_hours(params: Mapping[str, Any], rates: Rates) -> tuple[int, float]
     (mop_core.shift.compose.ComposeConfig.pool_sizes, what compose_task rolls out), its processes in waves."""
     study = study_config(params)
     grid = shift_grid(params, study)
-    config, teachers = compose_config(grid), composing_teachers(params)
+    config, teachers = compose_config(grid), build_catalogue(params).composing_teachers
     episodes = (sum(config.pool_sizes().values()) + sum(config.pool_sizes(heldout=True).values())
                 + config.reference_episodes)
     waves = math.ceil(len(teachers) / grid.workers)

@@ -22,13 +22,18 @@ import time
 from common import load_params, require_inputs, run_stage
 
 from mop_core.data import write_json
+from mop_core.experiment.catalogue import build_catalogue
 from mop_core.experiment.study import shift_grid, study_config
 from mop_core.learning.runtime import parallel_map, progress_enabled
-from mop_core.shift.compose import compose_config, compose_jobs, compose_teacher_data, composing_teachers, summary_lines
-from mop_core.storage.layout import RESULTS, composed_file, timing_file
+from mop_core.shift.compose import (
+    compose_config,
+    compose_jobs,
+    compose_metrics,
+    compose_teacher_data,
+    summary_lines,
+)
+from mop_core.storage.layout import COMPOSE_METRICS, composed_file, timing_file
 from mop_core.storage.timings import write_timing
-
-COMPOSE_METRICS = RESULTS / "compose" / "metrics.json"
 
 
 def main() -> None:
@@ -37,11 +42,11 @@ def main() -> None:
     grid = shift_grid(params, study)
     config = compose_config(grid)
     started = time.perf_counter()
-    teachers = composing_teachers(params)
+    teachers = build_catalogue(params).composing_teachers
     require_inputs([t.paths.checkpoint for t in teachers], "train_teachers")
     jobs = compose_jobs(teachers, config, study.seed, study.episode_length)
     summaries = parallel_map(compose_teacher_data, jobs, grid.workers, "compose", progress_enabled(study.progress))
-    metrics = {f"{t.task}-{t.level}": summary for t, summary in zip(teachers, summaries)}
+    metrics = compose_metrics(teachers, summaries)
     write_json(COMPOSE_METRICS, metrics)
     write_timing(timing_file("compose"), time.perf_counter() - started, "cpu", workers=grid.workers,
                  tasks={key: summary["seconds"] for key, summary in metrics.items()})

@@ -31,7 +31,7 @@ from mop_core.eval_study import (
 from mop_core.experiment.catalogue import build_catalogue
 from mop_core.experiment.study import EvalConfig, study_config, typed_section
 from mop_core.learning.runtime import progress_enabled
-from mop_core.storage.layout import COLLECT_METRICS, stage_dir, timing_file
+from mop_core.storage.layout import COLLECT_METRICS, EVAL_METRICS, timing_file
 from mop_core.walker.tasks import substitute_base
 
 
@@ -47,7 +47,7 @@ def main() -> None:
     norms |= substitute_normalisers(substitutes, norms, study.seed, study.episode_length, config.rollout_envs)
     evaluation = evaluate_study(catalogue, config, study.episode_length, norms, progress_enabled(study.progress))
     metrics = eval_metrics(evaluation, catalogue, config, norms)
-    plotted = write_eval_outputs(stage_dir("eval"), evaluation, metrics, catalogue, config)
+    plotted = write_eval_outputs(EVAL_METRICS.parent, evaluation, metrics, catalogue, config)
     print_summary(plotted, metrics, write_eval_timing(timing_file("eval"), evaluation))
 
 

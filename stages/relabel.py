@@ -19,7 +19,7 @@ from mop_core.data import write_json
 from mop_core.experiment.study import sharing_grid, study_config, typed_section
 from mop_core.learning.runtime import configure_compute
 from mop_core.relabel import RelabelConfig, relabel_dataset
-from mop_core.storage.layout import dataset_file, relabel_file, stage_dir, timing_file
+from mop_core.storage.layout import RELABEL_METRICS, dataset_file, relabel_file, timing_file
 from mop_core.storage.timings import per_second, write_timing
 
 
@@ -39,7 +39,7 @@ def main() -> None:
     for task, level in sources:
         metrics[f"{task}-{level}"] = relabel_dataset(dataset_file(task, level), relabel_file(task, level),
                                                      reward_tasks, config, source_task=task, level=level)
-    write_json(stage_dir("relabel") / "metrics.json", metrics)
+    write_json(RELABEL_METRICS, metrics)
     seconds = time.perf_counter() - started
     relabelled = sum(m["transitions"] for m in metrics.values()) * len(reward_tasks)
     timing = write_timing(timing_file("relabel"), seconds, datasets=len(sources),

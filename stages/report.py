@@ -26,11 +26,10 @@ from mop_core.report.load import load_results, read_optional
 from mop_core.report.sharing import sharing_section
 from mop_core.report.shift import shift_section
 from mop_core.report.verdict_section import decide, verdict_record, verdict_section
-from mop_core.storage.layout import HEADLINE_METRICS, RESULTS
+from mop_core.storage.layout import COMPOSE_METRICS, HEADLINE_METRICS, RESULTS, SHIFT_METRICS, VERDICTS
 
 REPORT = RESULTS / "report.md"
 FIGURES = RESULTS / "report"
-VERDICTS = RESULTS / "verdicts.json"
 THESIS_PROFILE = Path("profiles/thesis.yaml")  # the thesis's scale, beside this run's in the report's header
 
 
@@ -38,11 +37,11 @@ def main() -> None:
     params = load_params()
     thesis = load_params(THESIS_PROFILE)
     results = load_results(build_catalogue(params), params)
-    shift_metrics = read_optional(RESULTS / "state_shift" / "metrics.json")
+    shift_metrics = read_optional(SHIFT_METRICS)
     decisions = decide(Evidence(results, shift_metrics))
     prefix = FIGURES.relative_to(RESULTS).as_posix() + "/"
     later = [structure_section(results, FIGURES, prefix), sharing_section(results, FIGURES, prefix)]
-    shift = shift_section(shift_metrics, read_optional(RESULTS / "compose" / "metrics.json"), results.tasks,
+    shift = shift_section(shift_metrics, read_optional(COMPOSE_METRICS), results.tasks,
                           "state_shift/figures/")
     markdown = render_report(results, FIGURES, prefix, later, [shift], verdict_section(decisions, params, thesis))
     with atomic_path(REPORT) as tmp:

@@ -26,7 +26,7 @@ from mop_core.experiment.study import study_config
 from mop_core.learning.runtime import progress_enabled
 from mop_core.shared_computation import shared_computation_config
 from mop_core.shared_study import measure_catalogue, print_summary, tau_during_training_figure
-from mop_core.storage.layout import stage_dir, timing_file
+from mop_core.storage.layout import SHARED_METRICS, stage_dir, timing_file
 from mop_core.storage.timings import write_timing
 
 
@@ -40,7 +40,7 @@ def main() -> None:
                                                               run.paths.metrics)], "distill")
     metrics, seconds = measure_catalogue(catalogue, config, threads, study.episode_length, out,
                                          progress_enabled(study.progress))
-    write_json(out / "metrics.json", metrics)
+    write_json(SHARED_METRICS, metrics)
     tau_during_training_figure(catalogue, out / "tau_during_training.png")
     print_summary(metrics, write_timing(timing_file("shared_computation"), **seconds))
 

@@ -23,12 +23,10 @@ from mop_core.eval_study import normalisers
 from mop_core.experiment.catalogue import build_catalogue
 from mop_core.learning.runtime import configure_compute
 from mop_core.shift.results import clear_figures, shift_stage, write_figures
-from mop_core.storage.layout import COLLECT_METRICS, RESULTS, stage_dir, timing_file
+from mop_core.storage.layout import COLLECT_METRICS, EVAL_METRICS, SHIFT_METRICS, timing_file
 from mop_core.storage.timings import write_timing
 
-OUT = RESULTS / "state_shift"
-EVAL_METRICS = stage_dir("eval") / "metrics.json"  # the students' and teachers' returns
-FIGURES = OUT / "figures"  # a folder output: the figures a run's params produce (none without students)
+FIGURES = SHIFT_METRICS.parent / "figures"  # a folder output: the figures of a run's params (none without students)
 
 
 def main() -> None:
@@ -42,12 +40,12 @@ def main() -> None:
         for writer, paths in stage.inputs(EVAL_METRICS).items():
             require_inputs(paths, writer)
         for task in stage.measured_tasks:
-            metrics["shift"][task] = stage.measure_task(task)
+            shift = stage.add_shift(metrics, task)
             print(f"state_shift {task}: " + ", ".join(f"{name} KL {m['kl']:.2f} AUC {m['auc']:.3f}"
-                                                     for name, m in metrics["shift"][task].items() if "kl" in m))
+                                                     for name, m in shift.items() if "kl" in m))
         stage.add_students(metrics, read_json(EVAL_METRICS), normalisers(stage.tasks, COLLECT_METRICS))
         write_figures(metrics, stage.tasks, FIGURES)
-    write_json(OUT / "metrics.json", metrics)
+    write_json(SHIFT_METRICS, metrics)
     write_timing(timing_file("state_shift"), time.perf_counter() - started, "cpu",
                  **({"threads": stage.measure.threads} if stage.active else {}))
     if not stage.active:

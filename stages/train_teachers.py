@@ -14,7 +14,7 @@ one teacher alone). A rerun after an interruption resumes from data/resume/teach
 distill.teacher_seed): ``ds``, per task i one on the union over every task j of D_{j->i}; ``oqs``, per
 pair j != i one on D_{j->i}, and per data_sharing substitute its own on D_{base->substitute} and its set's
 DS / OQS teachers not trained already. Files as above under <kind>-<level>-deterministic/, named
-<task>-from-<tasks>-<level>-deterministic-<seed>. The runs of an entry: mop_core.teachers.teacher_entries.
+<task>-from-<tasks>-<level>-deterministic-<seed>. The runs of an entry: the catalogue's teacher_entries.
 """
 
 from __future__ import annotations

@@ -22,7 +22,6 @@ from mop_core.shift.compose import (
     compose_config,
     compose_jobs,
     compose_task,
-    composing_teachers,
     dataset_writer,
     random_policy,
     summary_lines,
@@ -123,7 +122,7 @@ def test_written_datasets_read_back_with_their_composition(tmp_path):
 
 
 def test_the_composing_teachers_are_the_ones_the_shift_students_learn_from(tiny_params):
-    teachers = composing_teachers(tiny_params)
+    teachers = build_catalogue(tiny_params).composing_teachers
     assert [(t.task, t.level, t.actor) for t in teachers] == [("stand", "medium", "deterministic"),
                                                               ("walk", "medium", "deterministic")]
     assert all(run.teachers == teachers for run in build_catalogue(tiny_params).shift_students)
@@ -133,7 +132,7 @@ def test_the_composing_teachers_are_the_ones_the_shift_students_learn_from(tiny_
     assert jobs[1][6]("online") == composed_file("walk", "medium", "online")
     params = copy.deepcopy(tiny_params)
     params["state_shift"].update(datasets=[], widths=[], correction_datasets=["offline"])
-    assert composing_teachers(params) == ()
+    assert build_catalogue(params).composing_teachers == ()
     summary = {"datasets": {"online": {"return_mean": 812.4}, "noise": {"return_mean": 300.6}}, "seconds": 12.3}
     assert summary_lines({"stand-medium": summary}) == ["compose stand-medium: episode returns online 812, noise 301 "
                                                         "(12 s)"]

@@ -13,7 +13,6 @@ from mop_core.experiment.study import shift_grid, study_config
 from mop_core.plan import STUDENT_STAGES, Rates, one_level_grid, scaled_profile, stage_hours
 from mop_core.shift.compose import compose_config
 from mop_core.study_params import check_params
-from mop_core.teachers import teacher_entries
 
 THESIS = yaml.safe_load((ROOT / "profiles" / "thesis.yaml").read_text())
 RATES = Rates(device="test", td3=100.0, pbrl={"deterministic": 50.0, "gaussian": 40.0},
@@ -67,9 +66,6 @@ def test_the_runs_counted_are_the_catalogues_and_the_stages():
     assert hours["shared_computation"][0] == len(catalogue.students)
     # every eval job, the deterministic teachers on the transfer tasks included (3 levels x 2 tasks x stand_still)
     assert hours["eval"][0] == len(catalogue.eval_jobs(transfer_tasks=("stand_still",))) == 878 + 6
-    # the teacher stages' entries are the catalogue's (they read neither the catalogue nor the student sections)
-    assert teacher_entries(THESIS) == catalogue.teacher_entries()
-    assert teacher_entries(THESIS, sharing=True) == catalogue.relabelled_teacher_entries()
 
 
 def test_compose_costs_the_pools_compose_rolls_out():

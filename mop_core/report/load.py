@@ -10,7 +10,15 @@ from mop_core.experiment.catalogue import Catalogue
 from mop_core.report.results import Run, StudyResults
 from mop_core.storage.artifacts import read_curve
 from mop_core.storage.files import read_json
-from mop_core.storage.layout import COLLECT_METRICS, LEVELS, RESULTS, dataset_summary_file, stage_dir
+from mop_core.storage.layout import (
+    COLLECT_METRICS,
+    EVAL_METRICS,
+    LEVELS,
+    RESULTS,
+    SHARED_METRICS,
+    dataset_summary_file,
+    stage_dir,
+)
 
 
 def read_optional(path: Path) -> dict | None:
@@ -73,11 +81,11 @@ def load_results(catalogue: Catalogue, params: Mapping[str, Any]) -> StudyResult
             {"substitute": s.substitute} if s.substitute else {})
         run = load_run(s, key)
         kind += [run] if run else []
-    results.evaluation = read_optional(stage_dir("eval") / "metrics.json")
+    results.evaluation = read_optional(EVAL_METRICS)
     shared = stage_dir("shared_computation")
-    results.shared = read_optional(shared / "metrics.json")
+    results.shared = read_optional(SHARED_METRICS)
     figures: dict = {}
-    for name, path in (("eval_returns", stage_dir("eval") / "returns.png"),
+    for name, path in (("eval_returns", EVAL_METRICS.parent / "returns.png"),
                        ("tau_during_training", shared / "tau_during_training.png")):
         if path.is_file():
             figures[name] = path.relative_to(RESULTS).as_posix()

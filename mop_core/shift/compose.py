@@ -41,7 +41,6 @@ import numpy as np
 from mop_core.config import from_mapping, keys_under, require
 from mop_core.data import write_dataset
 from mop_core.experiment.runs import TeacherRun
-from mop_core.experiment.study import pairing_levels, section, shift_grid, study_config
 from mop_core.learning.runtime import derive_seeds
 from mop_core.storage.layout import REFERENCE, composed_file, heldout_name
 from mop_core.walker.rollout import Policy, collect_episodes
@@ -247,25 +246,17 @@ def compose_teacher_data(teacher_path: Path, task: str, level: str, config: Comp
     return {"datasets": summary, "teacher": str(teacher_path), "seconds": round(time.perf_counter() - started, 1)}
 
 
-def composing_teachers(params: Mapping[str, Any]) -> tuple[TeacherRun, ...]:
-    """Per study task, the deterministic MOP teacher of the ``state_shift.pairing`` level (seed
-    ``distill.teacher_seed``) whose rollouts compose its datasets: the teachers the state-shift students
-    learn from (mop_core.experiment.catalogue, tested equal); () when ``state_shift.datasets`` composes none. From
-    the study, state_shift and distill.teacher_seed params alone (the compose stage's)."""
-    study = study_config(params)
-    grid = shift_grid(params, study)
-    if not grid.datasets:
-        return ()
-    seed = section(params, "distill")["teacher_seed"]
-    return tuple(TeacherRun(task, level, "deterministic", seed)
-                 for task, level in zip(study.tasks, pairing_levels(grid.pairing, study, "state_shift.pairing")))
-
-
 def compose_jobs(teachers: Sequence[TeacherRun], config: ComposeConfig, seed: int, episode_length: int) -> list[tuple]:
     """The :func:`compose_teacher_data` jobs of ``teachers`` (one per task), each writing its datasets to
     data/composed/<task>-<level>-<name>.hdf5 (mop_core.storage.layout.composed_file)."""
     return [(t.paths.checkpoint, t.task, t.level, config, seed, episode_length, partial(composed_file, t.task, t.level))
             for t in teachers]
+
+
+def compose_metrics(teachers: Sequence[TeacherRun], summaries: Sequence[Mapping]) -> dict[str, Mapping]:
+    """The compose stage's metrics (mop_core.storage.layout.COMPOSE_METRICS; the report's composed-data
+    table reads them): per composing teacher, ``<task>-<level>`` -> its :func:`compose_teacher_data` summary."""
+    return {f"{t.task}-{t.level}": summary for t, summary in zip(teachers, summaries, strict=True)}
 
 
 def summary_lines(metrics: Mapping[str, Mapping]) -> list[str]:

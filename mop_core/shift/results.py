@@ -116,12 +116,14 @@ class ShiftStage:
                 "distill": [run.paths.metrics for _, runs in self.groups.values() for run in runs],
                 "eval": [evaluation]}
 
-    def measure_task(self, task: str) -> dict[str, dict]:
-        """Every dataset of ``task`` against its teacher's reference (mop_core.shift.study.measure_shift)."""
+    def add_shift(self, metrics: dict, task: str) -> dict[str, dict]:
+        """Every dataset of ``task`` against its teacher's reference (mop_core.shift.study.measure_shift),
+        into ``metrics`` (:meth:`start_metrics`'s); returns it."""
         states, episodes = read_states(self.dataset_files(task))  # observations and each row's episode
         reference = states.pop("reference")
         seed = derive_seeds([self.study_seed, "state_shift", task], ("measure",))["measure"] % (2 ** 31)
-        return measure_shift(states, reference, self.measure, seed, episodes)
+        metrics["shift"][task] = measure_shift(states, reference, self.measure, seed, episodes)
+        return metrics["shift"][task]
 
     def add_students(self, metrics: dict, evaluation: Mapping, norms: Mapping[str, Mapping]) -> None:
         """The student table (mop_core.shift.study.student_table: the eval stage's ``evaluation``), what

@@ -28,9 +28,16 @@ class RunPaths:
 LEVELS = ("expert", "medium", "medium_replay")  # the dataset levels (D4RL's names) a study's files are named by
 DATA = Path("data")
 RESULTS = Path("results")
-COLLECT_METRICS = RESULTS / "collect" / "metrics.json"
 TIMINGS = RESULTS / "timings"
-HEADLINE_METRICS = RESULTS / "metrics.json"
+# Each stage's metrics file (`dvc metrics show`): their paths are spelled here only, for writers and readers.
+COLLECT_METRICS = RESULTS / "collect" / "metrics.json"  # snapshot returns, R_random per task
+RELABEL_METRICS = RESULTS / "relabel" / "metrics.json"  # per dataset: the physics check's largest error
+COMPOSE_METRICS = RESULTS / "compose" / "metrics.json"  # each composed dataset's composition and returns
+EVAL_METRICS = RESULTS / "eval" / "metrics.json"  # every policy group's returns, raw and normalised
+SHARED_METRICS = RESULTS / "shared_computation" / "metrics.json"  # Table 6.1 per student group
+SHIFT_METRICS = RESULTS / "state_shift" / "metrics.json"  # each dataset's shift, the state_shift students
+VERDICTS = RESULTS / "verdicts.json"  # every finding's verdict and effects
+HEADLINE_METRICS = RESULTS / "metrics.json"  # the headline numbers and the verdict counts
 
 
 @dataclass(frozen=True)
