@@ -104,8 +104,8 @@ def _entry_seconds(runs: Sequence[StudentRun], params: Mapping[str, Any], study_
     return seconds
 
 
-# the dvc.yaml stages of the students (the table: distill .. distill_single, train_shared_teachers, distill_sharing,
-# distill_substitute, compose, distill_composed .. distill_corrected)
+# the dvc.yaml stages of the students in the table's order (distill .. distill_single, train_shared_teachers,
+# distill_sharing, distill_substitute, compose, distill_composed .. distill_corrected); another family's stage follows
 STUDENT_STAGES = ("distill", "distill_width", "distill_ranking", "distill_single", "distill_sharing",
                   "distill_substitute", "distill_composed", "distill_size", "distill_corrected")
 
@@ -145,17 +145,16 @@ def stage_hours(params: Mapping[str, Any], rates: Rates) -> dict[str, tuple[int,
     out["train_multitask"] = _hours(catalogue.multitask, lambda run: (
         len(run.tasks) * t_sched["steps"] / rates.pbrl["deterministic"]
         + _evaluation_steps(t_sched, length, len(run.tasks)) / rates.rollout))
-    students = {}
-    for stage in STUDENT_STAGES:
-        entries = list(catalogue.distill_stages().get(stage, {}).values())
-        students[stage] = (sum(map(len, entries)), sum(_entry_seconds(runs, params, len(tasks), rates)
-                                                       for runs in entries) / 3600)
-    out |= {stage: students[stage] for stage in STUDENT_STAGES[:4]}
+    students = {stage: (sum(map(len, entries.values())), sum(_entry_seconds(runs, params, len(tasks), rates)
+                                                              for runs in entries.values()) / 3600)
+                for stage, entries in catalogue.distill_stages().items()}
+    place = lambda stages: {stage: students.pop(stage, (0, 0.0)) for stage in stages}  # noqa: E731
+    out |= place(STUDENT_STAGES[:4])
     out["train_shared_teachers"] = _hours(catalogue.relabelled_teachers, lambda run: (  # a deterministic teacher's cost
         t_sched["steps"] / rates.pbrl["deterministic"] + _evaluation_steps(t_sched, length) / rates.rollout))
-    out |= {stage: students[stage] for stage in STUDENT_STAGES[4:6]}
+    out |= place(STUDENT_STAGES[4:6])
     out["compose"] = _compose_hours(params, rates)
-    out |= {stage: students[stage] for stage in STUDENT_STAGES[6:]}
+    out |= place(STUDENT_STAGES[6:]) | students  # a family's stage not placed here: after the others
 
     transfer = tuple(params["eval"].get("transfer_tasks") or ())
     out["eval"] = _hours(catalogue.eval_jobs(transfer_tasks=transfer),
