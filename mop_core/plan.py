@@ -18,7 +18,7 @@ collect steps one walker per TD3 update at the single-environment rate; the comm
 (distill_width, distill_ranking) cost what plain MSE students do (no rate is measured for other widths
 or for the ranking regulariser: a lower bound for width 512 and for the regulariser) and a single-task
 student (distill_single) its task's share of a multi-task student's update; a data-sharing
-teacher (train_shared_teachers) costs what a deterministic teacher does (its data is larger, its
+teacher (train_relabelled_teachers) costs what a deterministic teacher does (its data is larger, its
 updates are not) and a data-sharing or substituted-set student (distill_sharing, distill_substitute)
 what a plain MSE student does; the state-shift students (distill_composed, distill_size,
 distill_corrected) too, whatever their width (a lower bound for width 512; a reweighted student's
@@ -104,7 +104,7 @@ def _entry_seconds(runs: Sequence[StudentRun], params: Mapping[str, Any], study_
     return seconds
 
 
-# the dvc.yaml stages of the students in the table's order (distill .. distill_single, train_shared_teachers,
+# the dvc.yaml stages of the students in the table's order (distill .. distill_single, train_relabelled_teachers,
 # distill_sharing, distill_substitute, compose, distill_composed .. distill_corrected); another family's stage follows
 STUDENT_STAGES = ("distill", "distill_width", "distill_ranking", "distill_single", "distill_sharing",
                   "distill_substitute", "distill_composed", "distill_size", "distill_corrected")
@@ -150,7 +150,8 @@ def stage_hours(params: Mapping[str, Any], rates: Rates) -> dict[str, tuple[int,
                 for stage, entries in catalogue.distill_stages().items()}
     place = lambda stages: {stage: students.pop(stage, (0, 0.0)) for stage in stages}  # noqa: E731
     out |= place(STUDENT_STAGES[:4])
-    out["train_shared_teachers"] = _hours(catalogue.relabelled_teachers, lambda run: (  # a deterministic teacher's cost
+    # each a deterministic teacher's cost
+    out["train_relabelled_teachers"] = _hours(catalogue.relabelled_teachers, lambda run: (
         t_sched["steps"] / rates.pbrl["deterministic"] + _evaluation_steps(t_sched, length) / rates.rollout))
     out |= place(STUDENT_STAGES[4:6])
     out["compose"] = _compose_hours(params, rates)

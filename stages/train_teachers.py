@@ -2,7 +2,7 @@
 together as one vectorised group (a `matrix` entry per level and actor type).
 
     python stages/train_teachers.py --level medium --actor deterministic [--tasks walk] [--seeds 0]
-    python stages/train_teachers.py --level medium --sharing ds|oqs   (train_shared_teachers, thesis 6.4)
+    python stages/train_teachers.py --level medium --sharing ds|oqs   (train_relabelled_teachers, thesis 6.4)
 
 Teacher <task>-<level>-<actor>-<seed> reads D_{i->i} (data/datasets/<task>-<level>.hdf5 with
 data/relabelled/<task>-<level>.hdf5's rewards for <task>) and writes data/teachers/<level>-<actor>/<name>.pt

@@ -439,8 +439,8 @@ def test_each_parameter_section_invalidates_only_its_stages(repo):
     assert _invalidated_by(repo, "collect", "td3.learning_rate", 0.002) == {"collect"}
     assert _invalidated_by(repo, "relabel", "physics_check_transitions", 20) == {"relabel"}
     teachers = _invalidated_by(repo, "train_teachers", "pbrl.learning_rate", 0.002)
-    assert {"train_teachers@medium-deterministic", "train_multitask@medium-0", "train_shared_teachers@medium-ds",
-            "train_shared_teachers@medium-oqs"} <= teachers
+    assert {"train_teachers@medium-deterministic", "train_multitask@medium-0", "train_relabelled_teachers@medium-ds",
+            "train_relabelled_teachers@medium-oqs"} <= teachers
     assert not {"collect", "relabel", "eval"} & teachers and not any(s.startswith("distill") for s in teachers)
     assert _invalidated_by(repo, "eval", "episodes", 2) == {"eval", "report"}  # the report names the budget
     assert _invalidated_by(repo, "shared_computation", "episodes", 2) == {"shared_computation"}
@@ -562,7 +562,7 @@ def test_bad_parameter_fails_before_compute_and_names_the_key(repo, tmp_path):
     result = _run([sys.executable, "stages/relabel.py"], work, check=False)
     assert "study.levels[1]: expected one of expert, medium, medium_replay" in result.stderr
 
-    params["study"]["levels"] = ["medium"]
+    params["study"]["tasks"], params["study"]["levels"] = ["stand", "walk"], ["medium"]  # a valid study again
     params["train_teachers"]["pbrl"]["ensemble_size"] = 1
     (work / "params.yaml").write_text(yaml.safe_dump(params))
     teacher = [sys.executable, "stages/train_teachers.py", "--level", "medium", "--tasks", "stand", "--seeds", "0"]

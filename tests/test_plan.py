@@ -59,7 +59,7 @@ def test_a_shortened_thesis_profile_passes_the_params_check_and_keeps_the_grid(f
 
 def test_the_runs_counted_are_the_catalogues_and_the_stages():
     hours, catalogue = stage_hours(THESIS, RATES), build_catalogue(THESIS)
-    assert hours["train_shared_teachers"][0] == len(catalogue.relabelled_teachers) == 14
+    assert hours["train_relabelled_teachers"][0] == len(catalogue.relabelled_teachers) == 14
     assert hours["distill"][0] == len(catalogue.mop_students())
     assert sum(hours[stage][0] for stage in STUDENT_STAGES) == len(catalogue.students + catalogue.shift_students)
     assert hours["distill_substitute"][0] == len(catalogue.substitute_students())

@@ -183,7 +183,7 @@ class Catalogue:
         return [run for run in self.students if run.pooled_states and not run.substitute]
 
     def relabelled_teacher_entries(self) -> dict[str, list[TeacherRun]]:
-        """train_shared_teachers entry (``<kind>-<level>-<actor>``) -> the teachers it trains together."""
+        """train_relabelled_teachers entry (``<kind>-<level>-<actor>``) -> the teachers it trains together."""
         return group_by(self.relabelled_teachers, "entry")
 
     def student_comparisons(self) -> list[tuple[str, str]]:

@@ -5,7 +5,7 @@
   (level, actor type) trains in one train_teachers entry, as one vectorised group (its ``entry``).
   A teacher on relabelled data (thesis 6.4) names its ``sources``: the tasks whose datasets, with
   its own task's rewards, it learns from (D_{j->i}): every task for data sharing (DS), one other
-  task for an offline Q-switch candidate (OQS); these train in the train_shared_teachers entries;
+  task for an offline Q-switch candidate (OQS); these train in the train_relabelled_teachers entries;
 - :class:`MultitaskRun`: the naive multi-task PBRL baseline per (level, seed);
 - :class:`StudentRun`: a distilled student per (loss, pairing, seed), with the teachers it learns
   from (one per study task); every seed of a (loss, pairing) trains in one distill entry, as one
@@ -66,7 +66,7 @@ SHARING_KINDS = ("ds", "oqs")  # teachers on relabelled data (thesis 6.4.2, 6.4.
 
 
 def sharing_teacher_entry(kind: str, level: str, actor: str) -> str:
-    """The train_shared_teachers entry (and file folder) of the teachers of one sharing kind and level:
+    """The train_relabelled_teachers entry (and file folder) of the teachers of one sharing kind and level:
     ``ds-<level>-<actor>`` (one per task) or ``oqs-<level>-<actor>`` (one per task pair j != i)."""
     return f"{kind}-{level}-{actor}"
 
@@ -370,7 +370,7 @@ def sharing_teachers(tasks: Sequence[str], level: str, kinds: Sequence[str], see
 
 def relabelled_teacher_runs(tasks: Sequence[str], level: str, kinds: Sequence[str], seed: int,
                         substitutes: Sequence[str] = ()) -> tuple[TeacherRun, ...]:
-    """Every teacher on relabelled data of one level (the train_shared_teachers entries), each once:
+    """Every teacher on relabelled data of one level (the train_relabelled_teachers entries), each once:
     :func:`sharing_teachers` on the study's ``tasks``; then per substitute (data_sharing) its own
     teacher on D_{base->substitute} and its task set's DS / OQS teachers not trained already (the
     other tasks' OQS teachers on the base task's data are the study set's)."""
