@@ -19,7 +19,7 @@ import math
 import multiprocessing
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -34,7 +34,7 @@ from mop_core.experiment.study import StudyConfig, section
 from mop_core.learning.nn import numpy_policy
 from mop_core.learning.online import fit_online
 from mop_core.learning.resume import run_fingerprint
-from mop_core.learning.runtime import configure_compute, derive_seeds, die_with_parent
+from mop_core.learning.runtime import CriterionNotMetError, configure_compute, derive_seeds, die_with_parent
 from mop_core.learning.schedule import OnlineSchedule
 from mop_core.storage.artifacts import save_checkpoint, state_sha256, write_curve
 from mop_core.storage.files import write_json
@@ -50,10 +50,16 @@ BEHAVIOUR_KIND = "td3_behaviour"  # the checkpoint kind of a medium/expert snaps
 class ScheduleConfig:
     """When TD3 trains, evaluates and snapshots (all counts are gradient steps unless named env)."""
 
-    total_steps: int  # gradient steps of the whole run: the expert snapshot
+    total_steps: int  # gradient steps of the whole run: the expert snapshot (with expert_return: the cap)
     medium_step: int  # gradient steps at the medium snapshot (early stop)
     medium_target_return: float | dict[str, float] | None = None  # if set: medium = the first evaluation
     #   reaching this return (one number, or one per task: {stand: 458.85, walk: 681.4})
+    expert_return: dict[str, float] | None = None  # the expert criterion per task (thesis 4.4.3: 979 / 907);
+    #   if set, training stops at the first evaluation whose return over expert_eval_episodes fresh episodes
+    #   reaches it (that snapshot is the expert; total_steps is the cap: an error names the task and its best
+    #   return), and medium is the earlier snapshot whose return over snapshot_eval_episodes episodes is
+    #   nearest medium_target_return
+    expert_eval_episodes: int = 20  # episodes of the expert criterion's check
     warmup_steps: int = 5000  # env steps with uniformly random actions before learning starts
     eval_every: int = 10000  # gradient steps between learning-curve evaluations
     eval_episodes: int = 5  # episodes per learning-curve evaluation
@@ -63,8 +69,16 @@ class ScheduleConfig:
 
     def __post_init__(self) -> None:
         for name in ("total_steps", "medium_step", "eval_every", "eval_episodes", "snapshot_eval_episodes",
-                     "random_episodes", "checkpoint_every"):
+                     "random_episodes", "checkpoint_every", "expert_eval_episodes"):
             require(getattr(self, name) > 0, name, "a positive integer", getattr(self, name))
+        if self.expert_return is not None:
+            require(isinstance(self.medium_target_return, dict), "medium_target_return",
+                    "a target return per task when expert_return is set (medium is the snapshot nearest it)",
+                    self.medium_target_return)
+            for task, value in self.expert_return.items():
+                medium = self.medium_target_return.get(task)
+                require(medium is None or value > medium, f"expert_return.{task}",
+                        f"a return above medium_target_return.{task}={medium}", value)
         require(self.warmup_steps >= 0, "warmup_steps", "a non-negative integer", self.warmup_steps)
         require(self.medium_step < self.total_steps, "medium_step",
                 f"fewer gradient steps than total_steps={self.total_steps} (medium is an early stop "
@@ -78,6 +92,14 @@ class ScheduleConfig:
                     "is missing)", target)
             return target[task]
         return target
+
+    def expert_criterion(self, task: str) -> float | None:
+        """Task ``task``'s expert criterion (None: the expert is the snapshot at ``total_steps``)."""
+        if self.expert_return is None:
+            return None
+        require(task in self.expert_return, "expert_return", f"a criterion for every study task ({task!r} is "
+                "missing)", self.expert_return)
+        return self.expert_return[task]
 
 
 @dataclass(frozen=True)
@@ -172,11 +194,17 @@ class _Progress:
     curve: list[dict] = field(default_factory=list)
     medium: _Snapshot | None = None
     fallback: _Snapshot | None = None  # closest evaluation below the target return so far
+    snapshots: list[_Snapshot] = field(default_factory=list)  # with an expert criterion: every evaluation's
+    expert: _Snapshot | None = None  # the first snapshot meeting the expert criterion (curve_return: its check's)
+    best_check: tuple[float, int] | None = None  # the best criterion check so far: (return, gradient steps)
 
     def record(self, row: dict, snap: _Snapshot, sched: ScheduleConfig, target: float | None) -> None:
-        """Add an evaluation row and choose the medium snapshot (fixed step or first target return)."""
+        """Add an evaluation row and choose the medium snapshot (fixed step or first target return; with
+        an expert criterion, every snapshot is kept and medium is chosen at the end)."""
         self.curve.append(row)
-        if self.medium is None and snap.gradient_steps < sched.total_steps:
+        if sched.expert_return is not None:
+            self.snapshots.append(snap)
+        elif self.medium is None and snap.gradient_steps < sched.total_steps:
             if target is None:
                 if snap.gradient_steps == sched.medium_step:
                     self.medium = snap
@@ -205,15 +233,25 @@ def train_behaviour(task: str, config: CollectConfig, seed: int, device: torch.d
     buffer = ReplayBuffer(sched.warmup_steps + sched.total_steps, OBS_DIM, ACT_DIM, PHYSICS_DIM, len(REWARD_FEATURES))
     eval_seeds = _eval_seeds(seeds["eval"], sched.eval_episodes)
     policy = lambda o: agent.act(o).astype(np.float64)  # noqa: E731
-    target = sched.medium_target(task)
+    target, criterion = sched.medium_target(task), sched.expert_criterion(task)
+    check_seeds = _eval_seeds(seeds["eval"] + 20_000, sched.expert_eval_episodes)
 
-    def evaluate(run: _Progress, update: int, env_steps: int, losses: dict) -> float:
+    def evaluate(run: _Progress, update: int, env_steps: int, losses: dict) -> tuple[float, bool]:
         returns = episode_returns(policy, task, eval_seeds, config.episode_length)
         row = {"step": update, "env_step": env_steps, "return_mean": float(returns.mean()),
                "return_std": float(returns.std()), "critic_loss": losses.get("critic_loss", math.nan),
                "actor_loss": losses.get("actor_loss", math.nan)}
-        run.record(row, _Snapshot(agent.actor_state(), update, env_steps, row["return_mean"]), sched, target)
-        return row["return_mean"]
+        snap = _Snapshot(agent.actor_state(), update, env_steps, row["return_mean"])
+        run.record(row, snap, sched, target)
+        if criterion is None or row["return_mean"] < criterion:
+            return row["return_mean"], False
+        check = float(episode_returns(policy, task, check_seeds, config.episode_length,
+                                      config.datasets.rollout_envs).mean())
+        if run.best_check is None or check > run.best_check[0]:
+            run.best_check = (check, update)
+        if check >= criterion:
+            run.expert = replace(snap, curve_return=check)
+        return row["return_mean"], run.expert is not None
 
     schedule = OnlineSchedule(sched.warmup_steps, sched.total_steps, sched.eval_every, sched.checkpoint_every,
                               extra_evals=(sched.medium_step,))
@@ -222,11 +260,46 @@ def train_behaviour(task: str, config: CollectConfig, seed: int, device: torch.d
                         record=_Progress(), evaluate=evaluate, resume=resume,
                         fingerprint=run_fingerprint({"task": task, "config": to_dict(config), "seed": seed}),
                         desc=f"collect {task}", progress=progress, position=position)
+    if criterion is not None:
+        return _criterion_snapshots(task, run, criterion, target, seeds, config) + (buffer, run.curve)
     expert = _Snapshot(agent.actor_state(), agent.updates, schedule.env_steps, run.curve[-1]["return_mean"])
     medium = run.medium
     if medium is None:  # target return never reached: the best evaluation below it
         medium = run.fallback if run.fallback is not None else expert
     return medium, expert, buffer, run.curve
+
+
+def snapshot_policy(actor: dict[str, torch.Tensor], td3: TD3Config):
+    """The deterministic numpy policy of a snapshot's actor weights."""
+    return numpy_policy(actor_from_checkpoint({"td3_config": to_dict(td3), "obs_dim": OBS_DIM, "act_dim": ACT_DIM,
+                                               "actor": actor}))
+
+
+def _criterion_snapshots(task: str, run: _Progress, criterion: float, target: float, seeds: dict,
+                         config: CollectConfig) -> tuple[_Snapshot, _Snapshot]:
+    """(medium, expert) of a run with an expert criterion: the expert is the snapshot that met it; medium,
+    among the earlier snapshots the three whose curve return is nearest ``target``, the one whose return
+    over ``snapshot_eval_episodes`` fresh episodes is nearest it. A run that never met the criterion
+    raises :class:`CriterionNotMetError` naming the task and its best return."""
+    sched = config.schedule
+    if run.expert is None:
+        best = (f"its best check {run.best_check[0]:.1f} over {sched.expert_eval_episodes} episodes at step "
+                f"{run.best_check[1]}" if run.best_check else
+                f"its best evaluation {max(r['return_mean'] for r in run.curve):.1f} (never at the criterion)")
+        raise CriterionNotMetError(f"collect {task}: the behaviour policy did not reach the expert criterion "
+                                   f"{criterion} (collect.schedule.expert_return.{task}) within total_steps="
+                                   f"{sched.total_steps} updates; {best}. No dataset was written.")
+    earlier = [s for s in run.snapshots if s.gradient_steps < run.expert.gradient_steps]
+    if not earlier:
+        raise CriterionNotMetError(f"collect {task}: the expert criterion held at the first evaluation (step "
+                                   f"{run.expert.gradient_steps}): no earlier snapshot can be the medium one; "
+                                   "lower collect.schedule.eval_every")
+    candidates = sorted(earlier, key=lambda s: abs(s.curve_return - target))[:3]
+    episodes = _eval_seeds(seeds["eval"] + 30_000, sched.snapshot_eval_episodes)
+    measured = [(abs(float(episode_returns(snapshot_policy(s.actor, config.td3), task, episodes, config.episode_length,
+                                           config.datasets.rollout_envs).mean()) - target), s) for s in candidates]
+    medium = min(measured, key=lambda m: (m[0], m[1].gradient_steps))[1]
+    return medium, run.expert
 
 
 def _dataset_summary(arrays: dict[str, np.ndarray], episode_length: int, behaviour_return: float | None) -> dict:
@@ -256,7 +329,7 @@ def collect_task(task: str, config: CollectConfig, seed: int, paths: CollectPath
     snapshot_seeds = _eval_seeds(seeds["eval"] + 10_000, config.schedule.snapshot_eval_episodes)
 
     summary: dict = {"task": task, "train_seconds": round(train_seconds, 1), "snapshots": {}, "datasets": {}}
-    policies = {}
+    policies, checkpoints = {}, {}
     for level, snap in (("medium", medium), ("expert", expert)):
         checkpoint = {"kind": BEHAVIOUR_KIND, "task": task, "level": level, "td3_config": to_dict(config.td3),
                       "obs_dim": OBS_DIM, "act_dim": ACT_DIM, "actor": snap.actor,
@@ -264,10 +337,21 @@ def collect_task(task: str, config: CollectConfig, seed: int, paths: CollectPath
         policy = numpy_policy(actor_from_checkpoint(checkpoint))
         returns = episode_returns(policy, task, snapshot_seeds, config.episode_length,
                                   config.datasets.rollout_envs)
-        checkpoint |= {"sha256": state_sha256(snap.actor), "return_mean": float(returns.mean()),
-                       "return_std": float(returns.std()), "eval_episodes": len(returns)}
-        save_checkpoint(paths.checkpoints[level], checkpoint)
+        checkpoints[level] = checkpoint | {"sha256": state_sha256(snap.actor), "return_mean": float(returns.mean()),
+                                           "return_std": float(returns.std()), "eval_episodes": len(returns)}
         policies[level] = policy
+    if config.schedule.expert_return is not None and \
+            checkpoints["expert"]["return_mean"] <= checkpoints["medium"]["return_mean"]:
+        raise CriterionNotMetError(
+            f"collect {task}: the expert snapshot (step {expert.gradient_steps}) returns "
+            f"{checkpoints['expert']['return_mean']:.1f} over {len(snapshot_seeds)} episodes, not above the medium "
+            f"one's {checkpoints['medium']['return_mean']:.1f} (step {medium.gradient_steps}). No dataset was written.")
+    if config.schedule.expert_return is not None:  # the check that made the expert, over its own episodes
+        summary["criterion"] = {"expert_criterion": config.schedule.expert_criterion(task),
+                                "expert_criterion_return": expert.curve_return,
+                                "expert_criterion_episodes": config.schedule.expert_eval_episodes}
+    for level, checkpoint in checkpoints.items():
+        save_checkpoint(paths.checkpoints[level], checkpoint)
         summary["snapshots"][level] = {k: checkpoint[k] for k in
                                        ("gradient_steps", "env_steps", "return_mean", "return_std", "sha256")}
 
@@ -332,7 +416,8 @@ def collect_metrics(summaries: dict[str, dict]) -> dict:
                       "medium_gradient_steps": s["snapshots"]["medium"]["gradient_steps"],
                       "expert_gradient_steps": s["snapshots"]["expert"]["gradient_steps"],
                       "random_return": s["random"]["return_mean"], "random_return_std": s["random"]["return_std"],
-                      "random_episodes": s["random"]["episodes"]} for task, s in summaries.items()}
+                      "random_episodes": s["random"]["episodes"]} | s.get("criterion", {})
+               for task, s in summaries.items()}
     return metrics
 
 

@@ -197,7 +197,7 @@ def scaled_profile(params: Mapping[str, Any], fraction: float, max_evaluations: 
             schedule["eval_every"] = max(schedule["eval_every"], -(-schedule[steps] // max_evaluations))
     collect = out["collect"]["schedule"]
     collect["medium_step"] = min(collect["medium_step"], collect["total_steps"] // 2)
-    collect["medium_target_return"] = None
+    collect["medium_target_return"] = collect["expert_return"] = None  # a scaled run stops at its step counts
     transitions = min(out["collect"]["datasets"][k] for k in ("expert_episodes", "medium_episodes")) * out[
         "study"]["episode_length"]
     transitions = min(transitions, collect["warmup_steps"] + collect["medium_step"])  # medium_replay

@@ -83,11 +83,13 @@ def check_section_keys(params: Mapping[str, Any]) -> None:
 
 
 def check_target_returns(collect: CollectConfig) -> None:
-    """A per-task medium target return names registered tasks (a misspelt one would be ignored)."""
-    targets = collect.schedule.medium_target_return
-    if isinstance(targets, dict):
-        for task in targets:
-            get_task(task, f"collect.schedule.medium_target_return.{task}")
+    """A per-task medium target return or expert criterion names registered tasks (a misspelt one would be
+    ignored)."""
+    for key in ("medium_target_return", "expert_return"):
+        targets = getattr(collect.schedule, key)
+        if isinstance(targets, dict):
+            for task in targets:
+                get_task(task, f"collect.schedule.{key}.{task}")
 
 
 def dataset_transitions(config: CollectConfig, level: str) -> int | None:
@@ -208,6 +210,8 @@ def check_params(params: Mapping[str, Any], where: str = "params.yaml") -> None:
     study = study_config(params)
     _, collect = collect_configs(params, study)
     check_target_returns(collect)
+    for task in study.tasks:  # a criterion for every study task, named before any compute
+        collect.schedule.expert_criterion(task)
     with keys_under("collect.schedule"):
         for task in study.tasks:  # a per-task target return names every study task
             collect.schedule.medium_target(task)

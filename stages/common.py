@@ -19,7 +19,7 @@ import yaml
 
 from mop_core.config import ConfigError, InputFileError, OutputFileError
 from mop_core.experiment.study import StudyConfig, check_sections
-from mop_core.learning.runtime import TrainingDivergedError, die_with_parent
+from mop_core.learning.runtime import CriterionNotMetError, TrainingDivergedError, die_with_parent
 from mop_core.storage.layout import DATA
 
 PARAMS = Path("params.yaml")
@@ -87,7 +87,8 @@ def run_stage(main) -> None:
         die_with_parent()
         hold_run_lock(sys.argv)
         main()
-    except (ConfigError, InputFileError, OutputFileError, TrainingDivergedError, StageBusyError) as err:
+    except (ConfigError, InputFileError, OutputFileError, TrainingDivergedError, CriterionNotMetError,
+            StageBusyError) as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
 

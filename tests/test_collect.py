@@ -197,3 +197,80 @@ def test_an_interrupted_behaviour_run_resumes_to_the_same_snapshots_datasets_and
         resumed = (tmp_path / "behaviour" / "stand" / f"{level}.pt").read_bytes()
         assert resumed == (root / "behaviour" / "stand" / f"{level}.pt").read_bytes()
     assert (tmp_path / "curves" / "stand.tsv").read_bytes() == (root / "curves" / "stand.tsv").read_bytes()
+
+
+def _criterion_config(cfg, **schedule):
+    """The tiny collect config with an expert criterion (stand only) and ``schedule`` changes."""
+    fields = {**cfg.schedule.__dict__, "medium_target_return": {"stand": 290.0}, "expert_return": {"stand": 600.0},
+              "expert_eval_episodes": 7, "snapshot_eval_episodes": 3, "eval_every": 100, "total_steps": 600,
+              "medium_step": 100} | schedule
+    return CollectConfig(cfg.td3, ScheduleConfig(**fields), cfg.datasets, cfg.episode_length)
+
+
+def test_an_expert_criterion_stops_training_there_and_medium_is_the_snapshot_measured_nearest_its_target(
+        tiny_collect_config, monkeypatch):
+    """Curve returns 100, 300, 500, 700 at steps 100..400: the criterion 600 is checked at step 400 (7 fresh
+    episodes: 620), so training stops there; of the earlier snapshots, measured over 3 episodes, the one
+    nearest 290 is medium (step 300 measures 280), whatever their curve returns were."""
+    import mop_core.collect as collect
+
+    config = _criterion_config(tiny_collect_config)
+    curve, measured = iter([100.0, 300.0, 500.0, 700.0]), iter([400.0, 95.0, 280.0])
+    calls = []
+
+    def scripted(policy, task, seeds, length, envs=10):
+        n = len(seeds)
+        calls.append(n)
+        value = next(curve) if n == config.schedule.eval_episodes else 620.0 if n == 7 else next(measured)
+        return np.full(n, value)
+
+    monkeypatch.setattr(collect, "episode_returns", scripted)
+    medium, expert, buffer, rows = collect.train_behaviour("stand", config, 0, torch.device("cpu"), False)
+    assert [r["step"] for r in rows] == [100, 200, 300, 400]  # stopped at the criterion, not at 600
+    assert expert.gradient_steps == 400 and expert.curve_return == 620.0
+    assert buffer.size == config.schedule.warmup_steps + 400
+    # candidates by curve distance to 290: steps 200 (300), 100 (100), 300 (500); measured 400, 95, 280
+    assert medium.gradient_steps == 300
+    assert calls == [2, 2, 2, 2, 7, 3, 3, 3]
+
+
+def test_an_expert_criterion_never_met_stops_collect_naming_the_task_and_its_best_return(tiny_collect_config,
+                                                                                         tmp_path):
+    from mop_core.learning.runtime import CriterionNotMetError
+
+    config = _criterion_config(tiny_collect_config, expert_return={"stand": 1e6}, total_steps=200)
+    with pytest.raises(CriterionNotMetError, match=r"collect stand: .*expert criterion 1000000.0 .*expert_return"
+                                                   r"\.stand.* total_steps=200 .*best evaluation"):
+        collect_task("stand", config, 0, collect_paths(tmp_path, "stand"))
+    assert not list(tmp_path.rglob("*.hdf5")) and not list(tmp_path.rglob("*.pt"))  # no "expert" below it
+
+
+def test_collect_metrics_carry_the_check_that_made_the_expert():
+    from mop_core.collect import collect_metrics
+
+    snapshot = {"return_mean": 1.0, "gradient_steps": 1}
+    summary = {"snapshots": {"medium": snapshot, "expert": snapshot},
+               "random": {"return_mean": 0.0, "return_std": 0.0, "episodes": 1}}
+    assert "expert_criterion" not in collect_metrics({"stand": summary})["stand"]
+    criterion = {"expert_criterion": 900.0, "expert_criterion_return": 912.3, "expert_criterion_episodes": 20}
+    assert collect_metrics({"stand": summary | {"criterion": criterion}})["stand"].items() >= criterion.items()
+
+
+@pytest.mark.parametrize("schedule, error", [
+    ({"medium_target_return": None}, "medium_target_return: expected a target return per task when expert_return"),
+    ({"expert_return": {"stand": 200.0}}, "expert_return.stand: expected a return above medium_target_return"),
+    ({"expert_eval_episodes": 0}, "expert_eval_episodes: expected a positive integer"),
+])
+def test_expert_criterion_settings_are_checked(tiny_collect_config, schedule, error):
+    with pytest.raises(ConfigError, match=error):
+        _criterion_config(tiny_collect_config, **schedule)
+
+
+def test_the_params_stage_names_a_study_task_without_an_expert_criterion(tiny_params):
+    from mop_core.study_params import check_params
+
+    params = json.loads(json.dumps(tiny_params))
+    params["collect"]["schedule"] |= {"medium_target_return": {"stand": 290.0, "walk": 300.0},
+                                      "expert_return": {"stand": 600.0}}
+    with pytest.raises(ConfigError, match="expert_return: expected a criterion for every study task .'walk'"):
+        check_params(params)

@@ -71,7 +71,7 @@ def test_an_unknown_key_is_refused_in_every_section(tiny_params, where):
     key = f"{where}.colour" if where else "colour"
     if where == "state_shift.compositions":  # its keys are dataset names: an entry must be a composition
         _refused(_set(tiny_params, (key, 1)), f"{key}: expected a mapping {{teacher_share")
-    elif where == "collect.schedule.medium_target_return":  # its keys are tasks (not in the tiny profile)
+    elif where in ("collect.schedule.medium_target_return", "collect.schedule.expert_return"):  # keys are tasks
         pytest.skip("a mapping of tasks")
     else:
         _refused(_set(tiny_params, (key, 1)), f"{key}: unknown " + ("section in params.yaml" if not where

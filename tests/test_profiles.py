@@ -12,7 +12,7 @@ from conftest import ROOT, params_stage
 PROFILES = sorted((ROOT / "profiles").glob("*.yaml"))
 
 
-VALUES = {"collect.schedule.medium_target_return"}  # a value that may be a mapping (a target per task), not a section
+VALUES = {"collect.schedule.medium_target_return", "collect.schedule.expert_return"}  # mappings of tasks, not sections
 
 
 def key_paths(mapping: dict, prefix: str = "") -> set[str]:

@@ -42,7 +42,8 @@ class OnlineLearner(Protocol):
 
 def fit_online(agent: OnlineLearner, env: Any, buffer: Any, schedule: OnlineSchedule, *, act_dim: int, batch_size: int,
                exploration_noise: float, warmup_rng: np.random.Generator, sampler: torch.Generator,
-               record: R, evaluate: Callable[[R, int, int, dict], float], resume: Path | None, fingerprint: str,
+               record: R, evaluate: Callable[[R, int, int, dict], tuple[float, bool]], resume: Path | None,
+               fingerprint: str,
                desc: str, progress: bool, position: int = 0) -> tuple[R, float]:
     """Train ``agent`` online in ``env`` (a :class:`~mop_core.walker.envs.WalkerEnv`), storing every
     transition in ``buffer`` (a :class:`~mop_core.data.buffer.ReplayBuffer`) and updating on minibatches
@@ -50,7 +51,8 @@ def fit_online(agent: OnlineLearner, env: Any, buffer: Any, schedule: OnlineSche
 
     After each update that :meth:`~OnlineSchedule.evaluates_at`, ``evaluate(record, update, env_steps,
     losses)`` adds a curve point to ``record`` (the caller's: its curve, snapshots) and returns the mean
-    return shown on the progress bar; ``losses``: the last value of each loss since the previous point.
+    return shown on the progress bar and whether the run stops there (an early stop: collect's expert
+    criterion met); ``losses``: the last value of each loss since the previous point.
     With ``resume``, a rerun continues from its resume file (see the module docstring).
 
     Returns the record (the resumed one, if the run resumed) and the seconds trained, resumed runs'
@@ -89,9 +91,11 @@ def fit_online(agent: OnlineLearner, env: Any, buffer: Any, schedule: OnlineSche
         bar.update(1)
         if schedule.evaluates_at(update):
             last_losses |= metrics.take_last()
-            shown = evaluate(record, update, t + 1, last_losses)
+            shown, stop = evaluate(record, update, t + 1, last_losses)
             last_losses = {}
             bar.set_postfix(ret=f"{shown:.0f}")
+            if stop:
+                break
         if (resume is not None and step.timeout and update - saved_at >= schedule.checkpoint_every
                 and t + 1 < schedule.env_steps):
             last_losses |= metrics.take_last()

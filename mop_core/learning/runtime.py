@@ -106,6 +106,11 @@ class TrainingDivergedError(RuntimeError):
     """A loss or weight became NaN or infinite; the message names the run, the step and the value."""
 
 
+class CriterionNotMetError(RuntimeError):
+    """A run that must reach a level did not within its cap (collect's expert criterion); the message
+    names the run, the criterion, the cap and its best return."""
+
+
 def die_with_parent(sig: int = signal.SIGTERM) -> None:
     """Have the kernel send ``sig`` to this process when its parent dies (Linux ``PR_SET_PDEATHSIG``).
 

@@ -41,7 +41,12 @@ def settings(params: Mapping[str, Any]) -> dict:
     medium = (f"medium at {collect['medium_step']}" if not collect.get("medium_target_return") else
               "medium: the first evaluation at or above the published medium return, else the best one; each task's "
               "step in section 1")
-    summary = (f"collect {collect['total_steps']} TD3 gradient steps per task ({medium}); "
+    if collect.get("expert_return"):
+        medium = (f"until the expert criterion {collect['expert_return']} holds over {collect['expert_eval_episodes']} "
+                  "episodes; medium: the earlier snapshot nearest the published medium return; each task's step in "
+                  "section 1")
+    steps = f"at most {collect['total_steps']}" if collect.get("expert_return") else str(collect["total_steps"])
+    summary = (f"collect {steps} TD3 gradient steps per task ({medium}); "
                f"PBRL teachers {teachers['schedule']['steps']} steps, seeds {teachers['seeds']}; students "
                f"{distill['schedule']['steps']} steps, seeds {distill['seeds']}; eval {evaluation['episodes']} "
                "episodes per policy and task")
