@@ -274,3 +274,19 @@ def test_the_params_stage_names_a_study_task_without_an_expert_criterion(tiny_pa
                                       "expert_return": {"stand": 600.0}}
     with pytest.raises(ConfigError, match="expert_return: expected a criterion for every study task .'walk'"):
         check_params(params)
+
+
+def test_the_behaviour_seeds_script_sets_existing_keys_and_refuses_a_typo(tiny_params):
+    import sys
+
+    from conftest import ROOT
+
+    sys.path.insert(0, str(ROOT / "scripts"))
+    from behaviour_seeds import with_overrides
+
+    params = with_overrides(json.loads(json.dumps(tiny_params)),
+                            ["collect.td3.layer_norm=true", "collect.schedule.expert_return={stand: 900, walk: 850}"])
+    assert params["collect"]["td3"]["layer_norm"] is True
+    assert params["collect"]["schedule"]["expert_return"] == {"stand": 900, "walk": 850}
+    with pytest.raises(SystemExit, match="--set collect.td3.layer_nrom: no such parameter"):
+        with_overrides(params, ["collect.td3.layer_nrom=true"])
