@@ -334,7 +334,7 @@ def collect_task(task: str, config: CollectConfig, seed: int, paths: CollectPath
         checkpoint = {"kind": BEHAVIOUR_KIND, "task": task, "level": level, "td3_config": to_dict(config.td3),
                       "obs_dim": OBS_DIM, "act_dim": ACT_DIM, "actor": snap.actor,
                       "gradient_steps": snap.gradient_steps, "env_steps": snap.env_steps, "seed": seed}
-        policy = numpy_policy(actor_from_checkpoint(checkpoint))
+        policy = snapshot_policy(snap.actor, config.td3)
         returns = episode_returns(policy, task, snapshot_seeds, config.episode_length,
                                   config.datasets.rollout_envs)
         checkpoints[level] = checkpoint | {"sha256": state_sha256(snap.actor), "return_mean": float(returns.mean()),
