@@ -288,7 +288,7 @@ def _criterion_snapshots(task: str, run: _Progress, criterion: float, target: fl
                 f"its best evaluation {max(r['return_mean'] for r in run.curve):.1f} (never at the criterion)")
         raise CriterionNotMetError(f"collect {task}: the behaviour policy did not reach the expert criterion "
                                    f"{criterion} (collect.schedule.expert_return.{task}) within total_steps="
-                                   f"{sched.total_steps} updates; {best}. No dataset was written.")
+                                   f"{sched.total_steps} updates; {best}. No dataset was written.", run.curve)
     earlier = [s for s in run.snapshots if s.gradient_steps < run.expert.gradient_steps]
     if not earlier:
         raise CriterionNotMetError(f"collect {task}: the expert criterion held at the first evaluation (step "
@@ -323,7 +323,13 @@ def collect_task(task: str, config: CollectConfig, seed: int, paths: CollectPath
     get_task(task)
     device = torch.device(device)
     started = time.perf_counter()
-    medium, expert, buffer, curve = train_behaviour(task, config, seed, device, progress, position, paths.resume)
+    try:
+        medium, expert, buffer, curve = train_behaviour(task, config, seed, device, progress, position, paths.resume)
+    except CriterionNotMetError as err:  # no dataset, but the curve that shows why (not a DVC output then)
+        if err.curve:
+            write_curve(paths.curve, err.curve)
+            err.args = (f"{err.args[0]} Its learning curve: {paths.curve}",)
+        raise
     train_seconds = time.perf_counter() - started
     seeds = task_seeds(seed, task)
     snapshot_seeds = _eval_seeds(seeds["eval"] + 10_000, config.schedule.snapshot_eval_episodes)

@@ -58,19 +58,31 @@ def run_one(task: str, seed: int, config: CollectConfig) -> dict:
         try:
             summary = collect_task(task, config, seed, paths)
         except CriterionNotMetError as err:
-            return {"task": task, "seed": seed, "met": False, "error": str(err),
-                    "seconds": round(time.perf_counter() - started, 1)}
+            return {"task": task, "seed": seed, "met": False, "error": str(err).split(" Its learning curve:")[0],
+                    "seconds": round(time.perf_counter() - started, 1), "curve": _curve(paths.curve)}
+        curve = _curve(paths.curve)
     snaps = summary["snapshots"]
     return {"task": task, "seed": seed, "met": True, "expert_steps": snaps["expert"]["gradient_steps"],
             "expert_criterion_return": summary.get("criterion", {}).get("expert_criterion_return"),
             "expert_return": snaps["expert"]["return_mean"], "medium_steps": snaps["medium"]["gradient_steps"],
-            "medium_return": snaps["medium"]["return_mean"], "seconds": round(time.perf_counter() - started, 1)}
+            "medium_return": snaps["medium"]["return_mean"], "seconds": round(time.perf_counter() - started, 1),
+            "curve": curve}
+
+
+def _curve(path: Path) -> list[list[float]]:
+    """The run's learning curve (collect's curve.tsv) as [gradient steps, mean return] pairs."""
+    if not path.exists():
+        return []
+    header, *rows = [line.split("\t") for line in path.read_text().splitlines()]
+    step, value = header.index("step"), header.index("return_mean")
+    return [[int(row[step]), round(float(row[value]), 1)] for row in rows]
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--params", type=Path, default=ROOT / "params.yaml")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--tasks", nargs="+", help="a subset of the params' study tasks (default: all)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument("--workers", type=int, default=2, help="runs at a time (one core each)")
     parser.add_argument("--out", type=Path, default=Path("behaviour_seeds.json"))
@@ -80,13 +92,17 @@ def main() -> None:
     params["collect"]["schedule"]["random_episodes"] = 1
     study = study_config(params)
     _, config = collect_configs(params, study)
-    runs = [(task, seed) for seed in args.seeds for task in study.tasks]
+    unknown = set(args.tasks or ()) - set(study.tasks)
+    if unknown:
+        raise SystemExit(f"error: --tasks {sorted(unknown)}: not among the params' study.tasks {list(study.tasks)}")
+    runs = [(task, seed) for seed in args.seeds for task in (args.tasks or study.tasks)]
     with ProcessPoolExecutor(args.workers) as pool:
         rows = list(pool.map(run_one, *zip(*runs), [config] * len(runs)))
     for row in rows:
         if row["met"]:
+            check = row["expert_criterion_return"]
             print(f"{row['task']} seed {row['seed']}: expert at {row['expert_steps']} updates (criterion check "
-                  f"{row['expert_criterion_return']:.1f}, snapshot {row['expert_return']:.1f}); medium at "
+                  f"{'-' if check is None else f'{check:.1f}'}, snapshot {row['expert_return']:.1f}); medium at "
                   f"{row['medium_steps']} ({row['medium_return']:.1f}); {row['seconds']:.0f} s")
         else:
             print(f"{row['task']} seed {row['seed']}: FAILED after {row['seconds']:.0f} s: {row['error']}")

@@ -243,6 +243,8 @@ def test_an_expert_criterion_never_met_stops_collect_naming_the_task_and_its_bes
                                                    r"\.stand.* total_steps=200 .*best evaluation"):
         collect_task("stand", config, 0, collect_paths(tmp_path, "stand"))
     assert not list(tmp_path.rglob("*.hdf5")) and not list(tmp_path.rglob("*.pt"))  # no "expert" below it
+    curve = collect_paths(tmp_path, "stand").curve.read_text().splitlines()  # but the curve that shows why
+    assert curve[0].split("\t")[:3] == ["step", "env_step", "return_mean"] and len(curve) == 1 + 200 // 100
 
 
 def test_collect_metrics_carry_the_check_that_made_the_expert():

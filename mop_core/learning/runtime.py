@@ -108,7 +108,12 @@ class TrainingDivergedError(RuntimeError):
 
 class CriterionNotMetError(RuntimeError):
     """A run that must reach a level did not within its cap (collect's expert criterion); the message
-    names the run, the criterion, the cap and its best return."""
+    names the run, the criterion, the cap and its best return. ``curve`` holds the run's learning-curve
+    rows (empty when the run got no further than its check), for whoever reports the failure."""
+
+    def __init__(self, message: str, curve: list[dict] | None = None) -> None:
+        super().__init__(message)
+        self.curve = list(curve or [])
 
 
 def die_with_parent(sig: int = signal.SIGTERM) -> None:
