@@ -29,7 +29,7 @@ from mop_core.experiment.study import StudyConfig, teacher_grid
 from mop_core.learning.nn import EnsembleCritic, numpy_policy
 from mop_core.learning.resume import run_fingerprint
 from mop_core.learning.runtime import derive_seeds
-from mop_core.learning.schedule import TrainSchedule
+from mop_core.learning.schedule import TrainSchedule, scheduled_rate, set_learning_rate
 from mop_core.learning.step_metrics import run_key, split_runs
 from mop_core.learning.training import (
     RunPaths,
@@ -153,16 +153,26 @@ class TeacherJob:
         return cls(run.task, sources[0], run.seed, run.paths, tuple(sources[1:]))
 
 
+def anneal(agent: PBRLGroup | MultiTaskPBRL, step: int, steps: int) -> None:
+    """Set the learning rate of step ``step`` of ``steps`` on every optimiser of ``agent``
+    (``pbrl.lr_schedule``; a constant schedule leaves the optimisers untouched)."""
+    pbrl = agent.config
+    if pbrl.lr_schedule != "constant":
+        set_learning_rate(agent.optimizers(), scheduled_rate(pbrl.learning_rate, pbrl.lr_schedule, step, steps))
+
+
 class _GroupLearner:
     """A :class:`PBRLGroup` with each run's dataset and index generator: ``update()`` draws run r's
     minibatch from run r's data with run r's generator (as :func:`train_teacher` alone would) and
     takes one step of every run; the generators' states are part of the resume state."""
 
     def __init__(self, agent: PBRLGroup, data: Sequence[TransitionTensors], samplers: Sequence[torch.Generator],
-                 batch_size: int):
+                 batch_size: int, steps: int):
         self.agent, self.data, self.samplers, self.batch_size = agent, list(data), list(samplers), batch_size
+        self.steps = steps
 
     def update(self) -> dict:
+        anneal(self.agent, self.agent.updates, self.steps)
         return self.agent.update(stack_batches([d.sample(self.batch_size, g) for d, g in zip(self.data,
                                                                                              self.samplers)]))
 
@@ -209,8 +219,8 @@ def train_teacher_group(jobs: Sequence[TeacherJob], config: TeacherConfig, study
              for job, (_, summary) in zip(jobs, data)]
     agent = PBRLGroup(config.pbrl, OBS_DIM, ACT_DIM, [s["agent"] for s in seeds], device)
     samplers = [torch.Generator(device).manual_seed(s["sampler"]) for s in seeds]  # indices drawn where the data lies
-    learner = _GroupLearner(agent, [tensors for tensors, _ in data], samplers, config.pbrl.batch_size)
     sched = config.schedule
+    learner = _GroupLearner(agent, [tensors for tensors, _ in data], samplers, config.pbrl.batch_size, sched.steps)
 
     def episodes(run: int, key: str, count: int) -> np.ndarray:
         return episode_returns(numpy_policy(agent.member_actor(run), device), jobs[run].task,
@@ -276,6 +286,7 @@ def train_multitask(tasks: Sequence[str], sources: Sequence[DataSource], config:
 
     def update() -> dict:
         metrics = {}
+        anneal(agent, agent.updates // len(tasks), sched.steps)  # the schedule counts steps per task
         for _ in tasks:  # one update per task, in the agent's alternating order
             task_index = agent.next_task
             step = agent.update(loaded[task_index][0].sample(config.pbrl.batch_size, sampler), task_index)

@@ -110,3 +110,26 @@ def test_group_rejects_mixed_or_repeated_runs():
     with pytest.raises(ValueError, match="same layers"):
         stack_networks([torch.nn.Sequential(torch.nn.Linear(2, 3)), torch.nn.Sequential(torch.nn.Linear(2, 3),
                                                                                         torch.nn.ReLU())])
+
+
+@pytest.mark.parametrize("schedule", ["constant", "cosine"])
+def test_a_teacher_learning_rate_schedule_reaches_every_optimiser(schedule):
+    # train_teachers.pbrl.lr_schedule: the group's actors, critics and entropy temperature (and the
+    # multi-task baseline's shared actor, per-task critics, temperature) all follow it; constant
+    # leaves Adam's rate as configured
+    from mop_core.agents.pbrl_multitask import MultiTaskPBRL
+    from mop_core.learning.schedule import scheduled_rate
+    from mop_core.teachers import anneal
+
+    cfg = config("gaussian", lr_schedule=schedule)
+    agents = [PBRLGroup(cfg, OBS, ACT, SEEDS), MultiTaskPBRL(cfg, ["stand", "walk"], OBS, ACT, seed=0)]
+    assert [len(a.optimizers()) for a in agents] == [3, 4]
+    for step, steps in ((0, 10), (5, 10), (9, 10)):
+        expected = cfg.learning_rate if schedule == "constant" else scheduled_rate(cfg.learning_rate, schedule,
+                                                                                   step, steps)
+        for agent in agents:
+            anneal(agent, step, steps)
+            assert [g["lr"] for o in agent.optimizers() for g in o.param_groups] == \
+                pytest.approx([expected] * len(agent.optimizers()))
+    if schedule == "cosine":  # half the rate at mid-run, ~0 at the end
+        assert scheduled_rate(1.0, schedule, 5, 10) == pytest.approx(0.5) and scheduled_rate(1.0, schedule, 10, 10) == 0

@@ -39,6 +39,7 @@ import torch
 from torch import nn
 
 from mop_core.config import require
+from mop_core.learning.schedule import LR_SCHEDULES
 from mop_core.data.buffer import Batch
 from mop_core.learning.nn import (
     ACTOR_TYPES,
@@ -65,6 +66,8 @@ class PBRLConfig:
     layer_norm: bool = False  # first hidden layer Linear -> LayerNorm -> tanh
     ensemble_size: int = 5  # E critics
     learning_rate: float = 1e-4  # Adam, actor and critics (Appendix B)
+    lr_schedule: str = "constant"  # constant (Appendix B) | cosine: annealed to 0 over the run's steps, so that
+    #   the last policy is not wherever an oscillating actor happens to stop (train_teachers' loops apply it)
     batch_size: int = 1024
     gamma: float = 0.99
     critic_tau: float = 5e-3  # Polyak rate of the target critics (Appendix B)
@@ -90,6 +93,7 @@ class PBRLConfig:
         require(self.ensemble_size >= 2, "ensemble_size", "an integer >= 2 (the penalty is a standard deviation)",
                 self.ensemble_size)
         require(self.learning_rate > 0, "learning_rate", "a positive number", self.learning_rate)
+        require(self.lr_schedule in LR_SCHEDULES, "lr_schedule", f"one of {LR_SCHEDULES}", self.lr_schedule)
         require(self.batch_size > 0, "batch_size", "a positive integer", self.batch_size)
         require(0 <= self.gamma < 1, "gamma", "a discount in [0, 1)", self.gamma)
         require(0 < self.critic_tau <= 1, "critic_tau", "a rate in (0, 1]", self.critic_tau)

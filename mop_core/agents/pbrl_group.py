@@ -137,6 +137,10 @@ class PBRLGroup:
     def runs(self) -> int:
         return len(self.seeds)
 
+    def optimizers(self) -> list[torch.optim.Optimizer]:
+        """Every optimiser of the group (actors, critics, the entropy temperature if tuned)."""
+        return [o for o in (self.actor_optimizer, self.critic_optimizer, self.alpha_optimizer) if o is not None]
+
     # ---- randomness and the networks, per run ----------------------------------------------------
     def _randn(self, shape: Sequence[int]) -> torch.Tensor:
         """Standard normal draws ``[R, *shape]``, run r's from run r's generator."""

@@ -48,6 +48,11 @@ class MultiTaskPBRL:
         self.generator = torch.Generator(self.device).manual_seed(seed)
         self.updates = 0
 
+    def optimizers(self) -> list[torch.optim.Optimizer]:
+        """Every optimiser: the shared actor's, each task critic's, the entropy temperature's if tuned."""
+        found = [self.actor_optimizer, *(c.optimizer for c in self.critics), self.temperature.optimizer]
+        return [o for o in found if o is not None]
+
     @property
     def next_task(self) -> int:
         """The task index the next :meth:`update` expects (tasks alternate)."""

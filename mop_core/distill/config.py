@@ -6,7 +6,6 @@ checkpoint's config or checking params does not import the training machinery.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
@@ -16,18 +15,16 @@ from mop_core.distill.losses import LOSSES, Q_REDUCTIONS
 from mop_core.distill.ranking import RANKING_LOSSES
 from mop_core.distill.student import StudentConfig
 from mop_core.experiment.study import DISTILL_GRID_KEYS, section
+from mop_core.learning.schedule import LR_SCHEDULES, scheduled_rate
 
 STATE_SOURCES = ("offline", "online")
-LR_SCHEDULES = ("constant", "cosine")
 RANKING_CHOICES = ("none", *RANKING_LOSSES)
 PROBE_SOURCES = ("offline", "visited")
 
 
 def learning_rate_at(config: "DistillConfig", step: int, total_steps: int) -> float:
     """The learning rate of gradient step ``step`` (0-based) of ``total_steps``."""
-    if config.lr_schedule == "constant":
-        return config.learning_rate
-    return config.learning_rate * 0.5 * (1.0 + math.cos(math.pi * min(step, total_steps) / total_steps))
+    return scheduled_rate(config.learning_rate, config.lr_schedule, step, total_steps)
 
 
 @dataclass(frozen=True)

@@ -7,9 +7,29 @@ study grid (mop_core.experiment.study) can hold them without importing the loops
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from mop_core.config import require
+
+
+LR_SCHEDULES = ("constant", "cosine")  # a learner's learning rate over its run
+
+
+def scheduled_rate(base: float, schedule: str, step: int, total_steps: int) -> float:
+    """The learning rate of gradient step ``step`` (0-based) of ``total_steps``: ``base`` (constant) or
+    ``base * (1 + cos(pi * step / total_steps)) / 2`` (cosine, to 0 at the last step)."""
+    if schedule == "constant":
+        return base
+    return base * 0.5 * (1.0 + math.cos(math.pi * min(step, total_steps) / total_steps))
+
+
+def set_learning_rate(optimizers, lr: float) -> None:
+    """Every parameter group of ``optimizers`` (None entries skipped) at learning rate ``lr``."""
+    for optimizer in optimizers:
+        if optimizer is not None:
+            for group in optimizer.param_groups:
+                group["lr"] = lr
 
 
 def due(step: int, every: int, last: int) -> bool:
