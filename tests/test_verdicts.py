@@ -22,6 +22,7 @@ from mop_core.report.verdicts import (
     equal_within,
     finding_verdict,
     paired,
+    unpaired,
     versus_run,
 )
 from mop_core.statistics import confidence_interval
@@ -123,6 +124,35 @@ def test_a_finding_is_decided_from_the_runs_results():
     assert above.effects[0].unit == "paired training seeds" and above.effects[0].n == 3
 
 
+def test_two_groups_of_independent_runs_get_a_welch_interval_over_their_seeds():
+    from scipy import stats
+
+    x, y = {0: 50.0, 1: 54.0, 2: 52.0}, {0: 40.0, 1: 30.0, 2: 35.0, 3: 39.0}
+    effect = unpaired("walk", x, y)
+    welch = stats.ttest_ind(list(x.values()), list(y.values()), equal_var=False).confidence_interval()
+    assert effect.value == pytest.approx(52.0 - 36.0) and (effect.low, effect.high) == pytest.approx(
+        (welch.low, welch.high))
+    assert effect.n == 3 and "unpaired" in effect.unit
+    assert not unpaired("walk", x, {0: 1.0, 1: 2.0}).decided  # 2 runs on a side: no interval over runs
+
+
+def test_teacher_findings_use_teacher_seeds_when_a_profile_trains_three():
+    """'teachers match their behaviour policy' with 3 teacher seeds: the seeds against the one
+    behaviour snapshot (an interval); with 1 seed, two single runs (no interval, inconclusive)."""
+    def results(teacher: dict[int, float]) -> StudyResults:
+        evaluation = {task: {"teacher_medium_deterministic": _entry(teacher),
+                             "behaviour_medium": _entry({0: 600.0}) | {"n": 15}} for task in TASKS}
+        evaluation["normalisation"] = {t: {"random_return": 0.0, "expert_return": 1000.0} for t in TASKS}
+        return StudyResults(tasks=TASKS, levels=["medium"], settings={"teacher_seed": 0},
+                            pairing_levels={"medium": ["medium", "medium"]}, evaluation=evaluation)
+
+    finding = [FINDINGS["teachers_match_behaviour"]]
+    three = decide(Evidence(results({0: 601.0, 1: 599.0, 2: 600.5})), finding)[0]
+    one = decide(Evidence(results({0: 601.0})), finding)[0]
+    assert three.verdict == REPRODUCED and three.effects[0].decided and three.effects[0].n == 3
+    assert one.verdict == INCONCLUSIVE and not one.effects[0].decided
+
+
 def test_every_finding_runs_on_an_empty_run_and_the_table_says_why_nothing_is_decided():
     decisions = decide(Evidence(StudyResults(tasks=TASKS, levels=["medium"], settings={})))
     assert len(decisions) == len(FINDINGS) and {d.verdict for d in decisions} == {INCONCLUSIVE}
@@ -130,3 +160,40 @@ def test_every_finding_runs_on_an_empty_run_and_the_table_says_why_nothing_is_de
     assert section.startswith("## Verdicts") and "it reproduces 0" in section
     record = verdict_record(decisions)
     assert record["thesis_findings"] == {REPRODUCED: 0, CONTRADICTED: 0, INCONCLUSIVE: len(THESIS)}
+
+
+def _shared(taus: dict[str, list[float]]) -> dict:
+    """shared_computation's record: per pairing, MSE students (one per seed) with an average tau-a."""
+    groups, students = {}, {}
+    for pairing, values in taus.items():
+        members = [f"mse-{pairing}-{seed}" for seed in range(len(values))]
+        groups[f"mse_{pairing}"] = {"members": members, "pairs": {"stand-walk": {"layer1": {}}}}
+        students |= {m: {"pairs": {"stand-walk": {"layer1": {"average_tau_a": v}}}} for m, v in zip(members, values)}
+    return {"groups": groups, "students": students}
+
+
+def test_expert_shares_most_compares_the_expert_pairings_tau_with_every_other_single_level_pairing():
+    pairings = {"expert": ["expert"] * 2, "medium": ["medium"] * 2, "medium_replay": ["medium_replay"] * 2,
+                "expert+medium": ["expert", "medium"]}
+    shared = _shared({"expert": [0.30, 0.32, 0.31], "medium": [0.10, 0.12, 0.11], "medium_replay": [0.2, 0.21, 0.22]})
+    results = StudyResults(tasks=TASKS, levels=["expert", "medium", "medium_replay"],
+                           settings={"structure_pairing": "medium"}, pairing_levels=pairings, shared=shared)
+    verdict = decide(Evidence(results), [FINDINGS["expert_shares_most"]])[0]
+    assert [e.label for e in verdict.effects] == ["expert - medium, layer 1", "expert - medium_replay, layer 1"]
+    assert verdict.verdict == REPRODUCED and verdict.effects[0].value == pytest.approx(0.2)
+    medium_only = StudyResults(tasks=TASKS, levels=["medium"], settings={}, pairing_levels={"medium": ["medium"] * 2})
+    assert decide(Evidence(medium_only), [FINDINGS["expert_shares_most"]])[0].verdict == INCONCLUSIVE
+
+
+def test_the_medium_replay_finding_reads_the_medium_replay_students_and_teacher_on_walk():
+    evaluation = {task: {"student_mse_medium_replay": _entry({0: 500, 1: 510, 2: 505}),
+                         "teacher_medium_replay_deterministic": _entry({0: 700}) | {"n": 15, "std": 5.0},
+                         "student_mse_medium": _entry({0: 700, 1: 710, 2: 705}),
+                         "teacher_medium_deterministic": _entry({0: 700}) | {"n": 15, "std": 5.0}} for task in TASKS}
+    evaluation["normalisation"] = {t: {"random_return": 0.0, "expert_return": 1000.0} for t in TASKS}
+    results = StudyResults(tasks=TASKS, levels=["medium", "medium_replay"], settings={"structure_pairing": "medium"},
+                           pairing_levels={"medium": ["medium"] * 2, "medium_replay": ["medium_replay"] * 2},
+                           evaluation=evaluation)
+    verdict = decide(Evidence(results), [FINDINGS["medium_replay_walk_short"]])[0]
+    assert verdict.verdict == REPRODUCED and [e.label for e in verdict.effects] == ["walk"]
+    assert verdict.effects[0].value == pytest.approx(-19.5)  # (505 - 700) / 1000 * 100

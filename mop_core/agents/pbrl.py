@@ -39,7 +39,6 @@ import torch
 from torch import nn
 
 from mop_core.config import require
-from mop_core.learning.schedule import LR_SCHEDULES
 from mop_core.data.buffer import Batch
 from mop_core.learning.nn import (
     ACTOR_TYPES,
@@ -51,6 +50,7 @@ from mop_core.learning.nn import (
     smoothed_target_action,
     soft_update,
 )
+from mop_core.learning.schedule import LR_SCHEDULES
 
 # (obs [B, o], repeats N) -> actions [N*B, a], N per state in repeat_interleave order; for a Gaussian
 # actor N independent samples, for a deterministic one its action N times

@@ -12,7 +12,6 @@ from dataclasses import dataclass
 
 from mop_core.config import require
 
-
 LR_SCHEDULES = ("constant", "cosine")  # a learner's learning rate over its run
 
 

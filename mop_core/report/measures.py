@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Callable, Sequence
 
 import numpy as np
@@ -15,10 +16,11 @@ from mop_core.report.verdicts import (
     not_run,
     paired,
     single_runs,
+    unpaired,
     versus_constant,
     versus_run,
 )
-from mop_core.statistics import TAU_BOUNDS, seed_interval
+from mop_core.statistics import MIN_SEEDS_FOR_SEED_CI, TAU_BOUNDS, seed_interval
 
 MOP: Variant | None = None  # plain MOP's students: no variant
 
@@ -54,12 +56,22 @@ def student_vs_teacher(variant: Variant | None, teacher: Callable[[Evidence, str
 
 def teacher_vs_teacher(a: Callable[[Evidence, str], str], b: Callable[[Evidence, str], str],
                        tasks: Sequence[str] | None = None) -> Callable[[Evidence], list[Effect]]:
-    """Two policies trained once each (per task): the difference of their eval means, no interval."""
+    """Two policy groups per task (teachers, the multi-task baseline, a behaviour policy), normalised:
+    with >= 3 training seeds on each side, a Welch interval over the seeds (:func:`unpaired`); with
+    >= 3 on side a and one policy on side b (a behaviour snapshot), a against that one fixed run
+    (:func:`versus_run`); otherwise the difference of two single runs' means, no interval."""
     def measure(ev: Evidence) -> list[Effect]:
         out = []
         for task in tasks or ev.tasks:
-            ea, eb = ev.entry(a(ev, task), task), ev.entry(b(ev, task), task)
-            effect = single_runs(task, ea, eb)
+            ga, gb = a(ev, task), b(ev, task)
+            sa, sb = ev.scores(ga, task) or {}, ev.scores(gb, task) or {}
+            if len(sa) >= MIN_SEEDS_FOR_SEED_CI and len(sb) >= MIN_SEEDS_FOR_SEED_CI:
+                out.append(unpaired(task, sa, sb))
+                continue
+            if len(sa) >= MIN_SEEDS_FOR_SEED_CI and len(sb) <= 1 and ev.entry(gb, task) is not None:
+                out.append(versus_run(task, sa, *ev.run(gb, task)))
+                continue
+            effect = single_runs(task, ev.entry(ga, task), ev.entry(gb, task))
             out.append(effect if effect.value is None else
                        Effect(task, effect.value * ev.scale(task), n=effect.n, unit=effect.unit, why=effect.why))
         return out
@@ -106,6 +118,32 @@ def requires_level(level: str, measure: Callable[[Evidence], list[Effect]]) -> C
             return [not_run(level, f"needs {level} teachers and students (study.levels: {ev.results.levels})")]
         return measure(ev)
     return wrapped
+
+
+def at_pairing(pairing: str, measure: Callable[[Evidence], list[Effect]]) -> Callable[[Evidence], list[Effect]]:
+    """``measure`` on the students and teachers of distill pairing ``pairing`` instead of the run's
+    comparison pairing; one not-run cell where the run has no such pairing."""
+    def wrapped(ev: Evidence) -> list[Effect]:
+        if pairing not in ev.results.pairing_levels:
+            return [not_run(pairing, f"no {pairing} pairing in this run (distill.pairings: "
+                                     f"{list(ev.results.pairing_levels)})")]
+        settings = {**ev.settings, "structure_pairing": pairing}
+        return measure(replace(ev, results=replace(ev.results, settings=settings)))
+    return wrapped
+
+
+def pairing_tau_vs_others(pairing: str) -> Callable[[Evidence], list[Effect]]:
+    """Per other single-level pairing of the run and layer: the average tau-a (Table 6.2's measure) of
+    ``pairing``'s MSE students minus that pairing's, paired by seed (training seeds in distill.seeds order)."""
+    def measure(ev: Evidence) -> list[Effect]:
+        others = [p for p, levels in ev.results.pairing_levels.items() if p != pairing and len(set(levels)) == 1]
+        if pairing not in ev.results.pairing_levels or not others:
+            return [not_run(pairing, f"needs the {pairing} pairing and another single-level one (distill.pairings: "
+                                     f"{list(ev.results.pairing_levels)})")]
+        return [paired(f"{pairing} - {other}, layer {layer}", ev.sc_tau(ev.structure(scope=pairing), layer),
+                       ev.sc_tau(ev.structure(scope=other), layer), "training seeds (paired)")
+                for other in others for layer in ev.layers()]
+    return measure
 
 
 def mop_teacher(ev: Evidence, task: str) -> str:

@@ -116,13 +116,32 @@ def versus_run(label: str, x: Mapping[int, float], run_mean: float, run_sd: floa
         return Effect(label, float(values.mean()) - run_mean, n=len(values), unit="training seeds",
                       why=f"{len(values)} training seeds: fewer than {MIN_SEEDS_FOR_SEED_CI}")
     var_x = values.var(ddof=1) / len(values)
-    var_r = (run_sd or 0.0) ** 2 / max(run_episodes, 1)
+    var_r = (run_sd or 0.0) ** 2 / run_episodes if run_episodes > 1 else 0.0  # one episode: no spread known
     se = math.sqrt(var_x + var_r)
     df = (var_x + var_r) ** 2 / (var_x ** 2 / (len(values) - 1) + (var_r ** 2 / (run_episodes - 1) if var_r else 0.0))
     half = float(stats.t.ppf(0.975, df)) * se
     value = float(values.mean()) - run_mean
     return Effect(label, value, value - half, value + half, len(values),
                   f"training seeds vs {run_episodes} episodes of the one run")
+
+
+def unpaired(label: str, x: Mapping[int, float], y: Mapping[int, float]) -> Effect:
+    """Two groups of independently trained runs (>= 3 each, e.g. teachers of two algorithms):
+    mean(x) - mean(y) with a Welch t-interval over their training seeds (unpaired: seed s of one
+    algorithm shares nothing with seed s of the other)."""
+    a, b = (np.array(list(v.values()), dtype=np.float64) for v in (x, y))
+    value = float(a.mean() - b.mean())
+    n = min(len(a), len(b))
+    if n < MIN_SEEDS_FOR_SEED_CI:
+        return Effect(label, value, n=n, unit="training seeds per side",
+                      why=f"{n} training seed(s) per side: fewer than {MIN_SEEDS_FOR_SEED_CI}")
+    var_a, var_b = a.var(ddof=1) / len(a), b.var(ddof=1) / len(b)
+    se = math.sqrt(var_a + var_b)
+    if se == 0:
+        return Effect(label, value, value, value, n, "training seeds per side (unpaired)")
+    df = (var_a + var_b) ** 2 / (var_a ** 2 / (len(a) - 1) + var_b ** 2 / (len(b) - 1))
+    half = float(stats.t.ppf(0.975, df)) * se
+    return Effect(label, value, value - half, value + half, n, "training seeds per side (unpaired)")
 
 
 def versus_constant(label: str, x: Mapping[int, float], constant: float) -> Effect:
