@@ -35,7 +35,6 @@ from mop_core.report.measures import (
     random90_at_512,
     random_vs_teacher_data,
     ranking_measure,
-    requires_level,
     sc_tau_vs,
     sc_tau_vs_thesis,
     shift_rank_correlation,
@@ -252,7 +251,7 @@ THESIS: list[Finding] = [
     Finding("ds_degrades_expert", "6.4.4, Figure 6.9b",
             "However, in the Expert X Expert setting (Figure [6.9b\\)](#page-49-0), DS significantly degrades "
             "teacher performance compared to MOP in both tasks.", 917, "DS teacher - MOP teacher (expert)", BELOW,
-            requires_level("expert", teacher_vs_teacher(ds_teacher, mop_teacher)), levels=("expert",)),
+            at_pairing("expert", teacher_vs_teacher(ds_teacher, mop_teacher)), levels=("expert",)),
     Finding("walk_teacher_best_on_both", "6.4.5, Table 6.3",
             "indicate that the walk teacher performs better in both tasks for all offline datasets.", 951,
             "walk's teacher on each task's reward - that task's own teacher", ABOVE, cross_task_walk_teacher),

@@ -111,15 +111,6 @@ def sc_tau_vs_thesis(variant: Variant | None, thesis: tuple[float, float]) -> Ca
     return measure
 
 
-def requires_level(level: str, measure: Callable[[Evidence], list[Effect]]) -> Callable[[Evidence], list[Effect]]:
-    """``measure`` where the run trained teachers at ``level``; else one not-run cell saying so."""
-    def wrapped(ev: Evidence) -> list[Effect]:
-        if level not in ev.results.levels:
-            return [not_run(level, f"needs {level} teachers and students (study.levels: {ev.results.levels})")]
-        return measure(ev)
-    return wrapped
-
-
 def at_pairing(pairing: str, measure: Callable[[Evidence], list[Effect]]) -> Callable[[Evidence], list[Effect]]:
     """``measure`` on the students and teachers of distill pairing ``pairing`` instead of the run's
     comparison pairing; one not-run cell where the run has no such pairing."""
