@@ -19,7 +19,7 @@ import json
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import yaml
@@ -78,6 +78,16 @@ def _curve(path: Path) -> list[list[float]]:
     return [[int(row[step]), round(float(row[value]), 1)] for row in rows]
 
 
+def row_line(row: dict) -> str:
+    """One run's outcome in words."""
+    if not row["met"]:
+        return f"{row['task']} seed {row['seed']}: FAILED after {row['seconds']:.0f} s: {row['error']}"
+    check = row["expert_criterion_return"]
+    return (f"{row['task']} seed {row['seed']}: expert at {row['expert_steps']} updates (criterion check "
+            f"{'-' if check is None else f'{check:.1f}'}, snapshot {row['expert_return']:.1f}); medium at "
+            f"{row['medium_steps']} ({row['medium_return']:.1f}); {row['seconds']:.0f} s")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--params", type=Path, default=ROOT / "params.yaml")
@@ -96,17 +106,13 @@ def main() -> None:
     if unknown:
         raise SystemExit(f"error: --tasks {sorted(unknown)}: not among the params' study.tasks {list(study.tasks)}")
     runs = [(task, seed) for seed in args.seeds for task in (args.tasks or study.tasks)]
-    with ProcessPoolExecutor(args.workers) as pool:
-        rows = list(pool.map(run_one, *zip(*runs), [config] * len(runs)))
-    for row in rows:
-        if row["met"]:
-            check = row["expert_criterion_return"]
-            print(f"{row['task']} seed {row['seed']}: expert at {row['expert_steps']} updates (criterion check "
-                  f"{'-' if check is None else f'{check:.1f}'}, snapshot {row['expert_return']:.1f}); medium at "
-                  f"{row['medium_steps']} ({row['medium_return']:.1f}); {row['seconds']:.0f} s")
-        else:
-            print(f"{row['task']} seed {row['seed']}: FAILED after {row['seconds']:.0f} s: {row['error']}")
-    args.out.write_text(json.dumps({"params": str(args.params), "set": args.set, "runs": rows}, indent=2) + "\n")
+    rows = []
+    with ProcessPoolExecutor(args.workers) as pool:  # each row printed and saved as its run ends
+        futures = [pool.submit(run_one, task, seed, config) for task, seed in runs]
+        for future in as_completed(futures):
+            rows.append(future.result())
+            print(row_line(rows[-1]), flush=True)
+            args.out.write_text(json.dumps({"params": str(args.params), "set": args.set, "runs": rows}, indent=2) + "\n")
     met = sum(row["met"] for row in rows)
     print(f"{met} of {len(rows)} runs met every criterion; {sum(r['seconds'] for r in rows) / 60:.1f} core-minutes")
 
