@@ -112,7 +112,8 @@ def main() -> None:
         for future in as_completed(futures):
             rows.append(future.result())
             print(row_line(rows[-1]), flush=True)
-            args.out.write_text(json.dumps({"params": str(args.params), "set": args.set, "runs": rows}, indent=2) + "\n")
+            record = {"params": str(args.params), "set": args.set, "runs": rows}
+            args.out.write_text(json.dumps(record, indent=2) + "\n")
     met = sum(row["met"] for row in rows)
     print(f"{met} of {len(rows)} runs met every criterion; {sum(r['seconds'] for r in rows) / 60:.1f} core-minutes")
 
