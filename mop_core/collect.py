@@ -60,6 +60,8 @@ class ScheduleConfig:
     #   return), and medium is the earlier snapshot whose return over snapshot_eval_episodes episodes is
     #   nearest medium_target_return
     expert_eval_episodes: int = 20  # episodes of the expert criterion's check
+    attempts: int = 1  # with expert_return: TD3 runs from fresh initialisations (seeds derived from the attempt)
+    #   until one meets every criterion within total_steps; only after the last one does collect stop with an error
     warmup_steps: int = 5000  # env steps with uniformly random actions before learning starts
     eval_every: int = 10000  # gradient steps between learning-curve evaluations
     eval_episodes: int = 5  # episodes per learning-curve evaluation
@@ -69,7 +71,7 @@ class ScheduleConfig:
 
     def __post_init__(self) -> None:
         for name in ("total_steps", "medium_step", "eval_every", "eval_episodes", "snapshot_eval_episodes",
-                     "random_episodes", "checkpoint_every", "expert_eval_episodes"):
+                     "random_episodes", "checkpoint_every", "expert_eval_episodes", "attempts"):
             require(getattr(self, name) > 0, name, "a positive integer", getattr(self, name))
         if self.expert_return is not None:
             require(isinstance(self.medium_target_return, dict), "medium_target_return",
@@ -79,6 +81,8 @@ class ScheduleConfig:
                 medium = self.medium_target_return.get(task)
                 require(medium is None or value > medium, f"expert_return.{task}",
                         f"a return above medium_target_return.{task}={medium}", value)
+        require(self.attempts == 1 or self.expert_return is not None, "attempts",
+                "1 without an expert criterion (expert_return: null: no run can fail)", self.attempts)
         require(self.warmup_steps >= 0, "warmup_steps", "a non-negative integer", self.warmup_steps)
         require(self.medium_step < self.total_steps, "medium_step",
                 f"fewer gradient steps than total_steps={self.total_steps} (medium is an early stop "
@@ -155,15 +159,17 @@ def collect_configs(params: Mapping[str, Any], study: StudyConfig) -> tuple[Para
     return parallel, config
 
 
-def task_seeds(seed: int, task: str) -> dict[str, int]:
-    """Independent seeds per purpose, derived from (study seed, task name) only.
+def task_seeds(seed: int, task: str, attempt: int = 0) -> dict[str, int]:
+    """Independent seeds per purpose, derived from (study seed, task name) only (and, for a behaviour
+    run's later attempts, the attempt number: attempt 0 is the first run's seeds).
 
     Adding or reordering tasks in a study leaves every other task's seeds unchanged. ``agent`` seeds
     TD3's initialisation and its noise generator (exploration and target smoothing); the replay
     sampler and the warm-up actions have seeds of their own, so no two streams are the same.
     """
-    return derive_seeds([seed, task], ("train_env", "agent", "eval", "expert_rollout", "medium_rollout", "sampler",
-                                       "warmup", "random_policy", "random_episodes"))
+    name = [seed, task] if attempt == 0 else [seed, task, f"attempt-{attempt}"]
+    return derive_seeds(name, ("train_env", "agent", "eval", "expert_rollout", "medium_rollout", "sampler", "warmup",
+                               "random_policy", "random_episodes"))
 
 
 def random_returns(task: str, episodes: int, seed: int, episode_length: int, rollout_envs: int,
@@ -215,7 +221,7 @@ class _Progress:
 
 
 def train_behaviour(task: str, config: CollectConfig, seed: int, device: torch.device, progress: bool,
-                    position: int = 0, resume: Path | None = None
+                    position: int = 0, resume: Path | None = None, attempt: int = 0
                     ) -> tuple[_Snapshot, _Snapshot, ReplayBuffer, list[dict]]:
     """Train TD3 on ``task`` online (mop_core.learning.online.fit_online); return the medium and expert
     snapshots, the replay and the curve.
@@ -225,7 +231,7 @@ def train_behaviour(task: str, config: CollectConfig, seed: int, device: torch.d
     the snapshots so far and the environment's random state before its next reset) and, started
     again, continues from it: the same snapshots, datasets and curve as an uninterrupted run.
     """
-    sched, seeds = config.schedule, task_seeds(seed, task)
+    sched, seeds = config.schedule, task_seeds(seed, task, attempt)
     env = WalkerEnv(task, seeds["train_env"], config.episode_length)
     agent = TD3(config.td3, OBS_DIM, ACT_DIM, seeds["agent"], device)
     rng = np.random.default_rng(seeds["warmup"])  # warm-up actions
@@ -258,8 +264,10 @@ def train_behaviour(task: str, config: CollectConfig, seed: int, device: torch.d
     run, _ = fit_online(agent, env, buffer, schedule, act_dim=ACT_DIM, batch_size=config.td3.batch_size,
                         exploration_noise=config.td3.exploration_noise, warmup_rng=rng, sampler=sampler,
                         record=_Progress(), evaluate=evaluate, resume=resume,
-                        fingerprint=run_fingerprint({"task": task, "config": to_dict(config), "seed": seed}),
-                        desc=f"collect {task}", progress=progress, position=position)
+                        fingerprint=run_fingerprint({"task": task, "config": to_dict(config), "seed": seed}
+                                                    | ({"attempt": attempt} if attempt else {})),
+                        desc=f"collect {task}" + (f" (attempt {attempt + 1})" if attempt else ""), progress=progress,
+                        position=position)
     if criterion is not None:
         return _criterion_snapshots(task, run, criterion, target, seeds, config) + (buffer, run.curve)
     expert = _Snapshot(agent.actor_state(), agent.updates, schedule.env_steps, run.curve[-1]["return_mean"])
@@ -302,6 +310,42 @@ def _criterion_snapshots(task: str, run: _Progress, criterion: float, target: fl
     return medium, run.expert
 
 
+def _attempt_resume(resume: Path | None, attempt: int) -> Path | None:
+    """The resume file of a behaviour run's attempt (the first attempt's is the task's resume file)."""
+    if resume is None or attempt == 0:
+        return resume
+    return resume.with_name(f"{resume.stem}.attempt{attempt + 1}{resume.suffix}")
+
+
+def _behaviour_attempt(task: str, config: CollectConfig, seed: int, device: torch.device, progress: bool,
+                       position: int, resume: Path | None, attempt: int, snapshot_seeds: list[int]):
+    """One behaviour run (:func:`train_behaviour`) and its snapshots measured over ``snapshot_seeds``:
+    (medium, expert, replay, curve, checkpoints, policies). With an expert criterion, an expert that does
+    not return more than its medium raises :class:`CriterionNotMetError` like a missed criterion."""
+    medium, expert, buffer, curve = train_behaviour(task, config, seed, device, progress, position, resume, attempt)
+    policies, checkpoints = {}, {}
+    for level, snap in (("medium", medium), ("expert", expert)):
+        checkpoint = {"kind": BEHAVIOUR_KIND, "task": task, "level": level, "td3_config": to_dict(config.td3),
+                      "obs_dim": OBS_DIM, "act_dim": ACT_DIM, "actor": snap.actor,
+                      "gradient_steps": snap.gradient_steps, "env_steps": snap.env_steps, "seed": seed}
+        if attempt:
+            checkpoint["attempt"] = attempt + 1
+        policy = snapshot_policy(snap.actor, config.td3)
+        returns = episode_returns(policy, task, snapshot_seeds, config.episode_length,
+                                  config.datasets.rollout_envs)
+        checkpoints[level] = checkpoint | {"sha256": state_sha256(snap.actor), "return_mean": float(returns.mean()),
+                                           "return_std": float(returns.std()), "eval_episodes": len(returns)}
+        policies[level] = policy
+    if config.schedule.expert_return is not None and \
+            checkpoints["expert"]["return_mean"] <= checkpoints["medium"]["return_mean"]:
+        raise CriterionNotMetError(
+            f"collect {task}: the expert snapshot (step {expert.gradient_steps}) returns "
+            f"{checkpoints['expert']['return_mean']:.1f} over {len(snapshot_seeds)} episodes, not above the medium "
+            f"one's {checkpoints['medium']['return_mean']:.1f} (step {medium.gradient_steps}). No dataset was written.",
+            curve)
+    return medium, expert, buffer, curve, checkpoints, policies
+
+
 def _dataset_summary(arrays: dict[str, np.ndarray], episode_length: int, behaviour_return: float | None) -> dict:
     returns = trajectory_returns(arrays["rewards"], arrays["timeouts"] | arrays["terminals"], episode_length)
     stats = {"return_mean": float(returns.mean()), "return_std": float(returns.std()),
@@ -323,39 +367,30 @@ def collect_task(task: str, config: CollectConfig, seed: int, paths: CollectPath
     get_task(task)
     device = torch.device(device)
     started = time.perf_counter()
-    try:
-        medium, expert, buffer, curve = train_behaviour(task, config, seed, device, progress, position, paths.resume)
-    except CriterionNotMetError as err:  # no dataset, but the curve that shows why (not a DVC output then)
-        if err.curve:
-            write_curve(paths.curve, err.curve)
-            err.args = (f"{err.args[0]} Its learning curve: {paths.curve}",)
-        raise
-    train_seconds = time.perf_counter() - started
     seeds = task_seeds(seed, task)
     snapshot_seeds = _eval_seeds(seeds["eval"] + 10_000, config.schedule.snapshot_eval_episodes)
-
+    failures: list[str] = []
+    for attempt in range(config.schedule.attempts):
+        try:
+            medium, expert, buffer, curve, checkpoints, policies = _behaviour_attempt(
+                task, config, seed, device, progress, position, _attempt_resume(paths.resume, attempt), attempt,
+                snapshot_seeds)
+            break
+        except CriterionNotMetError as err:
+            failures.append(f"attempt {attempt + 1}: {err}" if config.schedule.attempts > 1 else str(err))
+            if attempt + 1 < config.schedule.attempts:
+                continue
+            if err.curve:  # no dataset, but the last attempt's curve that shows why (not a DVC output then)
+                write_curve(paths.curve, err.curve)
+            where = f" Its learning curve: {paths.curve}" if err.curve else ""
+            raise CriterionNotMetError(" ".join(failures) + where, err.curve) from None
+    train_seconds = time.perf_counter() - started
     summary: dict = {"task": task, "train_seconds": round(train_seconds, 1), "snapshots": {}, "datasets": {}}
-    policies, checkpoints = {}, {}
-    for level, snap in (("medium", medium), ("expert", expert)):
-        checkpoint = {"kind": BEHAVIOUR_KIND, "task": task, "level": level, "td3_config": to_dict(config.td3),
-                      "obs_dim": OBS_DIM, "act_dim": ACT_DIM, "actor": snap.actor,
-                      "gradient_steps": snap.gradient_steps, "env_steps": snap.env_steps, "seed": seed}
-        policy = snapshot_policy(snap.actor, config.td3)
-        returns = episode_returns(policy, task, snapshot_seeds, config.episode_length,
-                                  config.datasets.rollout_envs)
-        checkpoints[level] = checkpoint | {"sha256": state_sha256(snap.actor), "return_mean": float(returns.mean()),
-                                           "return_std": float(returns.std()), "eval_episodes": len(returns)}
-        policies[level] = policy
-    if config.schedule.expert_return is not None and \
-            checkpoints["expert"]["return_mean"] <= checkpoints["medium"]["return_mean"]:
-        raise CriterionNotMetError(
-            f"collect {task}: the expert snapshot (step {expert.gradient_steps}) returns "
-            f"{checkpoints['expert']['return_mean']:.1f} over {len(snapshot_seeds)} episodes, not above the medium "
-            f"one's {checkpoints['medium']['return_mean']:.1f} (step {medium.gradient_steps}). No dataset was written.")
     if config.schedule.expert_return is not None:  # the check that made the expert, over its own episodes
         summary["criterion"] = {"expert_criterion": config.schedule.expert_criterion(task),
                                 "expert_criterion_return": expert.curve_return,
-                                "expert_criterion_episodes": config.schedule.expert_eval_episodes}
+                                "expert_criterion_episodes": config.schedule.expert_eval_episodes,
+                                "attempts": len(failures) + 1}
     for level, checkpoint in checkpoints.items():
         save_checkpoint(paths.checkpoints[level], checkpoint)
         summary["snapshots"][level] = {k: checkpoint[k] for k in
@@ -389,8 +424,10 @@ def collect_task(task: str, config: CollectConfig, seed: int, paths: CollectPath
         write_json(paths.dataset_metrics[level], metrics)
         summary["datasets"][level] = metrics
     write_curve(paths.curve, curve)
-    if paths.resume is not None:
-        paths.resume.unlink(missing_ok=True)  # every output is written: the run is over
+    for attempt in range(config.schedule.attempts):  # every output is written: the run is over
+        resume = _attempt_resume(paths.resume, attempt)
+        if resume is not None:
+            resume.unlink(missing_ok=True)
     summary["total_seconds"] = round(time.perf_counter() - started, 1)
     return summary
 

@@ -247,6 +247,20 @@ def test_an_expert_criterion_never_met_stops_collect_naming_the_task_and_its_bes
     assert curve[0].split("\t")[:3] == ["step", "env_step", "return_mean"] and len(curve) == 1 + 200 // 100
 
 
+def test_a_missed_criterion_is_retried_from_fresh_seeds_and_the_error_names_every_attempt(tiny_collect_config,
+                                                                                          tmp_path):
+    from mop_core.learning.runtime import CriterionNotMetError
+
+    assert task_seeds(0, "stand", 0) == task_seeds(0, "stand")  # the first attempt is the plain run
+    assert set(task_seeds(0, "stand", 1).values()).isdisjoint(task_seeds(0, "stand").values())
+    config = _criterion_config(tiny_collect_config, expert_return={"stand": 1e6}, total_steps=200, attempts=2)
+    with pytest.raises(CriterionNotMetError, match=r"attempt 1: collect stand: .* attempt 2: collect stand: ") as err:
+        collect_task("stand", config, 0, collect_paths(tmp_path, "stand"))
+    assert not list(tmp_path.rglob("*.hdf5")) and len(err.value.curve) == 200 // 100
+    with pytest.raises(ConfigError, match="attempts: expected 1 without an expert criterion"):
+        _criterion_config(tiny_collect_config, expert_return=None, attempts=2)
+
+
 def test_collect_metrics_carry_the_check_that_made_the_expert():
     from mop_core.collect import collect_metrics
 
