@@ -153,6 +153,17 @@ def test_teacher_findings_use_teacher_seeds_when_a_profile_trains_three():
     assert one.verdict == INCONCLUSIVE and not one.effects[0].decided
 
 
+def test_one_multitask_run_against_three_teacher_seeds_is_the_teachers_interval_turned_around():
+    evaluation = {task: {"teacher_medium_deterministic": _entry({0: 600.0, 1: 610.0, 2: 605.0}),
+                         "multitask_medium": _entry({0: 200.0}) | {"n": 15}} for task in TASKS}
+    evaluation["normalisation"] = {t: {"random_return": 0.0, "expert_return": 1000.0} for t in TASKS}
+    results = StudyResults(tasks=TASKS, levels=["medium"], settings={"teacher_seed": 0},
+                           pairing_levels={"medium": ["medium", "medium"]}, evaluation=evaluation)
+    verdict = decide(Evidence(results), [FINDINGS["multitask_fails"]])[0]
+    effect = verdict.effects[0]
+    assert verdict.verdict == REPRODUCED and effect.value == pytest.approx(-40.5) and effect.high < 0
+
+
 def test_every_finding_runs_on_an_empty_run_and_the_table_says_why_nothing_is_decided():
     decisions = decide(Evidence(StudyResults(tasks=TASKS, levels=["medium"], settings={})))
     assert len(decisions) == len(FINDINGS) and {d.verdict for d in decisions} == {INCONCLUSIVE}

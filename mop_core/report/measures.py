@@ -58,8 +58,9 @@ def teacher_vs_teacher(a: Callable[[Evidence, str], str], b: Callable[[Evidence,
                        tasks: Sequence[str] | None = None) -> Callable[[Evidence], list[Effect]]:
     """Two policy groups per task (teachers, the multi-task baseline, a behaviour policy), normalised:
     with >= 3 training seeds on each side, a Welch interval over the seeds (:func:`unpaired`); with
-    >= 3 on side a and one policy on side b (a behaviour snapshot), a against that one fixed run
-    (:func:`versus_run`); otherwise the difference of two single runs' means, no interval."""
+    >= 3 on one side and one policy on the other (a behaviour snapshot, a multi-task baseline trained
+    once), the seeds against that one fixed run (:func:`versus_run`); otherwise the difference of two
+    single runs' means, no interval."""
     def measure(ev: Evidence) -> list[Effect]:
         out = []
         for task in tasks or ev.tasks:
@@ -70,6 +71,10 @@ def teacher_vs_teacher(a: Callable[[Evidence, str], str], b: Callable[[Evidence,
                 continue
             if len(sa) >= MIN_SEEDS_FOR_SEED_CI and len(sb) <= 1 and ev.entry(gb, task) is not None:
                 out.append(versus_run(task, sa, *ev.run(gb, task)))
+                continue
+            if len(sb) >= MIN_SEEDS_FOR_SEED_CI and len(sa) <= 1 and ev.entry(ga, task) is not None:
+                flipped = versus_run(task, sb, *ev.run(ga, task))  # b - a: the one run a is the fixed side
+                out.append(replace(flipped, value=-flipped.value, low=-flipped.high, high=-flipped.low))
                 continue
             effect = single_runs(task, ev.entry(ga, task), ev.entry(gb, task))
             out.append(effect if effect.value is None else
