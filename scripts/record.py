@@ -1,6 +1,7 @@
 """Copy a finished study's results into ``record/``: the git-tracked record of a run.
 
     python scripts/record.py             # after `dvc repro` of the quick profile (params.yaml)
+    python scripts/record.py --dest record/evidence   # after `dvc repro` of profiles/evidence.yaml
 
 Every stage output is DVC-cached (so that the run cache can share any stage: see README, "DVC"),
 which keeps results/ out of git. The record is how a run's results reach a reader of the repository:
@@ -86,7 +87,9 @@ def readme_with_timings(readme: str, record: Path) -> str:
     return README_BLOCK.sub(lambda m: m.group(1) + timing_table(record) + "\n" + m.group(2), readme)
 
 
-def write_record(root: Path, record: Path) -> int:
+def write_record(root: Path, record: Path, readme: bool = True) -> int:
+    """Copy ``root``'s recorded outputs and dvc.lock to ``record``; with ``readme``, rewrite README.md's
+    time table from it (the quick profile's record; another profile's record leaves README alone)."""
     lock_path = root / "dvc.lock"
     if not lock_path.is_file():
         raise SystemExit(f"error: {lock_path}: not found; run `dvc repro` first")
@@ -109,22 +112,27 @@ def write_record(root: Path, record: Path) -> int:
     if problems:
         shutil.rmtree(staging)
         raise SystemExit("error: the copy does not match dvc.lock: " + "; ".join(problems))
-    if record.exists():  # replace the old record only once the new one is complete
+    if record.exists():  # replace the old record only once the new one is complete, keeping the records of
+        for nested in record.iterdir():  # other profiles inside it (record/evidence/: a dvc.lock of its own)
+            if nested.is_dir() and (nested / "dvc.lock").is_file():
+                nested.rename(staging / nested.name)
         shutil.rmtree(record)
     staging.rename(record)
-    readme = root / "README.md"
-    if readme.is_file():
-        readme.write_text(readme_with_timings(readme.read_text(), record))
-    print(f"recorded {len(outputs)} outputs of dvc.lock under {record}; README.md's time table rewritten")
+    readme_path = root / "README.md"
+    if readme and readme_path.is_file():
+        readme_path.write_text(readme_with_timings(readme_path.read_text(), record))
+    print(f"recorded {len(outputs)} outputs of dvc.lock under {record}"
+          + ("; README.md's time table rewritten" if readme and readme_path.is_file() else ""))
     return 0
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--root", type=Path, default=ROOT, help="the project whose results to record")
-    parser.add_argument("--dest", type=Path, default=None, help="the record directory (default: <root>/record)")
+    parser.add_argument("--dest", type=Path, default=None, help="the record directory (default: <root>/record); "
+                        "another profile's, e.g. record/evidence, leaves README.md's time table alone")
     args = parser.parse_args(argv)
-    return write_record(args.root, args.dest or args.root / "record")
+    return write_record(args.root, args.dest or args.root / "record", readme=args.dest is None)
 
 
 if __name__ == "__main__":

@@ -9,16 +9,39 @@ import shutil
 import subprocess
 import sys
 
+import pytest
+import yaml
 from conftest import ROOT
 
 sys.path.insert(0, str(ROOT / "scripts"))
-from record import check_record, readme_with_timings, recorded_outputs, timing_table  # noqa: E402
+from record import check_record, output_md5, readme_with_timings, recorded_outputs, timing_table  # noqa: E402
 
 RECORD = ROOT / "record"
 
 
-def test_the_record_is_exactly_what_its_dvc_lock_describes():
-    assert check_record(RECORD) == []
+RECORDS = [RECORD, *(d for d in sorted(RECORD.iterdir()) if (d / "dvc.lock").is_file())]  # + other profiles
+
+
+@pytest.mark.parametrize("record", RECORDS, ids=lambda d: d.relative_to(ROOT).as_posix())
+def test_the_record_is_exactly_what_its_dvc_lock_describes(record):
+    assert check_record(record) == []
+
+
+def test_recording_the_quick_study_again_keeps_another_profiles_record_inside_it(tmp_path):
+    from record import write_record
+
+    root = tmp_path / "project"
+    (root / "results").mkdir(parents=True)
+    (root / "results" / "a.txt").write_text("new\n")
+    lock = {"stages": {"s": {"outs": [{"path": "results/a.txt", "md5": output_md5(root / "results" / "a.txt")}]}}}
+    (root / "dvc.lock").write_text(yaml.safe_dump(lock))
+    (root / "record" / "evidence").mkdir(parents=True)
+    (root / "record" / "evidence" / "dvc.lock").write_text("stages: {}\n")
+    (root / "record" / "stale.txt").write_text("old\n")
+    write_record(root, root / "record", readme=False)
+    assert (root / "record" / "evidence" / "dvc.lock").read_text() == "stages: {}\n"
+    assert (root / "record" / "results" / "a.txt").read_text() == "new\n"
+    assert not (root / "record" / "stale.txt").exists()
 
 
 def test_the_readmes_time_table_is_the_records_generated_one():
