@@ -27,6 +27,7 @@ from mop_core.distill.states import TaskStates
 from mop_core.distill.student import Student, StudentGroup
 from mop_core.learning.conflict import flat_gradient, pairwise_cosines
 from mop_core.learning.nn import EnsembleCritic, adam, with_task_id
+from mop_core.learning.schedule import set_learning_rate
 from mop_core.learning.step_metrics import run_key
 
 
@@ -205,8 +206,7 @@ class Distiller:
 
     def update(self) -> dict[str, torch.Tensor | float]:
         lr = learning_rate_at(self.config, self.updates, self.total_steps)
-        for group in self.optimizer.param_groups:
-            group["lr"] = lr
+        set_learning_rate([self.optimizer], lr)
         tasks = range(len(self.tasks))
         if self.config.step_per_task:
             metrics = {}

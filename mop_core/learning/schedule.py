@@ -24,11 +24,10 @@ def scheduled_rate(base: float, schedule: str, step: int, total_steps: int) -> f
 
 
 def set_learning_rate(optimizers, lr: float) -> None:
-    """Every parameter group of ``optimizers`` (None entries skipped) at learning rate ``lr``."""
+    """Every parameter group of ``optimizers`` at learning rate ``lr``."""
     for optimizer in optimizers:
-        if optimizer is not None:
-            for group in optimizer.param_groups:
-                group["lr"] = lr
+        for group in optimizer.param_groups:
+            group["lr"] = lr
 
 
 def due(step: int, every: int, last: int) -> bool:
