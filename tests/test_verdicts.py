@@ -208,3 +208,25 @@ def test_the_medium_replay_finding_reads_the_medium_replay_students_and_teacher_
     verdict = decide(Evidence(results), [FINDINGS["medium_replay_walk_short"]])[0]
     assert verdict.verdict == REPRODUCED and [e.label for e in verdict.effects] == ["walk"]
     assert verdict.effects[0].value == pytest.approx(-19.5)  # (505 - 700) / 1000 * 100
+
+
+def test_teachers_hold_their_level_is_decided_per_task_and_level_over_teacher_seeds():
+    """The teacher bar (>= 0.9 of the dataset's return): 3 seeds well above it reproduce, one level
+    below it contradicts the whole finding, one seed is no interval."""
+    from mop_core.report.results import Run
+
+    def results(ratios: dict[tuple[str, str], list[float]]) -> StudyResults:
+        runs = [Run({"task": task, "level": level, "actor": "deterministic"}, seed, {"return_ratio": r}, [])
+                for (task, level), values in ratios.items() for seed, r in enumerate(values)]
+        runs.append(Run({"task": "stand", "level": "expert", "actor": "gaussian"}, 0, {"return_ratio": 0.1}, []))
+        return StudyResults(tasks=TASKS, levels=["expert", "medium"], settings={}, teachers=runs)
+
+    good = {(t, lv): [0.98, 1.01, 0.99] for t in TASKS for lv in ("expert", "medium")}
+    finding = [FINDINGS["teachers_hold_level"]]
+    held = decide(Evidence(results(good)), finding)[0]
+    assert held.verdict == REPRODUCED and len(held.effects) == 4 and all(e.n == 3 for e in held.effects)
+    assert held.effects[0].value == pytest.approx((0.98 + 1.01 + 0.99) / 3 - 0.9)  # the Gaussian teacher is not read
+    failed = decide(Evidence(results(good | {("walk", "expert"): [0.55, 0.6, 0.5]})), finding)[0]
+    assert failed.verdict == CONTRADICTED
+    one_seed = decide(Evidence(results({(t, "medium"): [0.99] for t in TASKS})), finding)[0]
+    assert one_seed.verdict == INCONCLUSIVE

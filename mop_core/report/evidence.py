@@ -87,6 +87,13 @@ class Evidence:
         sd = run.get("std")
         return self.normalise(task, run["mean"]), None if sd is None else sd * self.scale(task), run["n"]
 
+    def teacher_ratios(self, task: str, level: str, actor: str = "deterministic") -> Seeds | None:
+        """Per training seed: the teacher's final return over its dataset's mean return (the teachers
+        stage's ``return_ratio``, its own final evaluation)."""
+        out = {r.seed: float(r.metrics["return_ratio"]) for r in self.results.teachers
+               if r.key == {"task": task, "level": level, "actor": actor} and "return_ratio" in r.metrics}
+        return out or None
+
     # ---- group names -----------------------------------------------------------------------------
     def student(self, variant: Variant | None = None, loss: str = "mse", scope: str | None = None) -> str:
         return student_group(student_recipe(loss, variant), scope or self.pairing)

@@ -42,6 +42,7 @@ from mop_core.report.measures import (
     student_vs_teacher,
     substitute_sharing_tau,
     teacher_vs_teacher,
+    teachers_reach,
     untrained_minus,
     width_measure,
 )
@@ -55,6 +56,7 @@ from mop_core.report.verdicts import (
     paired,
 )
 
+TEACHER_RATIO = 0.9  # a teacher holds its level: >= 0.9 of its dataset's mean return
 RETURN_MARGIN = 10.0  # normalised points: "matches" = within 10% of the expert-random range
 TAU_MARGIN = 0.1  # Kendall tau: "a level similar to", "0.067" = within 0.1
 
@@ -259,6 +261,11 @@ THESIS: list[Finding] = [
 
 # ---- this run's own findings --------------------------------------------------------------------------
 OWN: list[Finding] = [
+    Finding("teachers_hold_level", "this run",
+            f"Every deterministic PBRL teacher reaches at least {TEACHER_RATIO} of its dataset's mean return, on "
+            "every task and level.", None,
+            f"teacher return / dataset return - {TEACHER_RATIO} (the teacher's final evaluation)", ABOVE,
+            teachers_reach(TEACHER_RATIO)),
     Finding("training_lowers_tau", "this run",
             "Distillation lowers per-state tau: every plain MOP student ends below its own value at initialisation.",
             None, "plain students: final - initial per-state tau-a on the probe states", BELOW, untrained_minus),

@@ -83,6 +83,15 @@ def teacher_vs_teacher(a: Callable[[Evidence, str], str], b: Callable[[Evidence,
     return measure
 
 
+def teachers_reach(ratio: float) -> Callable[[Evidence], list[Effect]]:
+    """Per task and teacher level: deterministic teachers' return over their dataset's return, minus
+    ``ratio``, over training seeds."""
+    def measure(ev: Evidence) -> list[Effect]:
+        return [versus_constant(f"{task} {level}", ev.teacher_ratios(task, level), ratio)
+                for level in ev.results.levels for task in ev.tasks]
+    return measure
+
+
 def probe_tau_vs(x: Variant | None, y: Variant | None = None, layers: Sequence[int] | None = None, at_y: str = "final"
                  ) -> Callable[[Evidence], list[Effect]]:
     """Per layer: per-state tau-a on the probe states of students x - students y, paired by seed."""
