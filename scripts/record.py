@@ -6,8 +6,10 @@
 Every stage output is DVC-cached (so that the run cache can share any stage: see README, "DVC"),
 which keeps results/ out of git. The record is how a run's results reach a reader of the repository:
 every output under results/ that dvc.lock lists, copied to record/results/ with the same relative
-paths (the report's figure links keep working), and dvc.lock itself as record/dvc.lock; and README.md's
-per-stage time table is rewritten from the record's timing files. Each copied
+paths (the report's figure links keep working), and dvc.lock itself as record/dvc.lock; the day's speed
+probe (benchmarks/speed_probe.py: measured now, or ``--probe`` a probe taken with the run) as
+record/speed_probe.json; and README.md's per-stage time table is rewritten from the record's timing
+files and probe. Each copied
 file or directory has the md5 that dvc.lock recorded for it, so the record is what the pipeline
 produced and nothing else; ``check_record`` (run by the tests on the committed record) says so.
 """
@@ -15,6 +17,7 @@ produced and nothing else; ``check_record`` (run by the tests on the committed r
 from __future__ import annotations
 
 import argparse
+import json
 import re
 import shutil
 import sys
@@ -25,8 +28,13 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from speed_probe import probe, summary  # noqa: E402
 
 from mop_core.storage.timings import stage_time_table  # noqa: E402
+
+PROBE = "speed_probe.json"
 
 
 def recorded_outputs(lock: dict) -> dict[str, str]:
@@ -76,8 +84,13 @@ README_BLOCK = re.compile(r"(<!-- timings:record -->\n).*?(<!-- /timings:record 
 
 
 def timing_table(record: Path) -> str:
-    """The per-stage seconds of the recorded run (its ``results/timings``), as the README shows them."""
-    return stage_time_table(record / "results" / "timings")
+    """The per-stage seconds of the recorded run (its ``results/timings``), as the README shows them,
+    with the day's speed probe when the record has one."""
+    table = stage_time_table(record / "results" / "timings")
+    if (record / PROBE).is_file():
+        result = json.loads((record / PROBE).read_text())
+        table += f"\n\nSpeed probe on the record's day ({result['when']}): {summary(result)}."
+    return table
 
 
 def readme_with_timings(readme: str, record: Path) -> str:
@@ -87,9 +100,10 @@ def readme_with_timings(readme: str, record: Path) -> str:
     return README_BLOCK.sub(lambda m: m.group(1) + timing_table(record) + "\n" + m.group(2), readme)
 
 
-def write_record(root: Path, record: Path, readme: bool = True) -> int:
-    """Copy ``root``'s recorded outputs and dvc.lock to ``record``; with ``readme``, rewrite README.md's
-    time table from it (the quick profile's record; another profile's record leaves README alone)."""
+def write_record(root: Path, record: Path, readme: bool = True, speed: dict | None = None) -> int:
+    """Copy ``root``'s recorded outputs and dvc.lock to ``record`` with the day's speed probe (``speed``;
+    None: measure it now); with ``readme``, rewrite README.md's time table from it (the quick profile's
+    record; another profile's record leaves README alone)."""
     lock_path = root / "dvc.lock"
     if not lock_path.is_file():
         raise SystemExit(f"error: {lock_path}: not found; run `dvc repro` first")
@@ -108,6 +122,9 @@ def write_record(root: Path, record: Path, readme: bool = True) -> int:
         else:
             shutil.copyfile(root / path, target)
     shutil.copyfile(lock_path, staging / "dvc.lock")
+    speed = speed or probe()
+    (staging / PROBE).write_text(json.dumps(speed, indent=1) + "\n")
+    print(f"speed probe ({speed['when']}): {summary(speed)}")
     problems = check_record(staging)
     if problems:
         shutil.rmtree(staging)
@@ -131,8 +148,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--root", type=Path, default=ROOT, help="the project whose results to record")
     parser.add_argument("--dest", type=Path, default=None, help="the record directory (default: <root>/record); "
                         "another profile's, e.g. record/evidence, leaves README.md's time table alone")
+    parser.add_argument("--probe", type=Path, default=None, help="a speed probe JSON taken with the run "
+                        "(benchmarks/speed_probe.py --out); default: measure one now")
     args = parser.parse_args(argv)
-    return write_record(args.root, args.dest or args.root / "record", readme=args.dest is None)
+    speed = json.loads(args.probe.read_text()) if args.probe else None
+    return write_record(args.root, args.dest or args.root / "record", readme=args.dest is None, speed=speed)
 
 
 if __name__ == "__main__":

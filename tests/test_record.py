@@ -38,8 +38,11 @@ def test_recording_the_quick_study_again_keeps_another_profiles_record_inside_it
     (root / "record" / "evidence").mkdir(parents=True)
     (root / "record" / "evidence" / "dvc.lock").write_text("stages: {}\n")
     (root / "record" / "stale.txt").write_text("old\n")
-    write_record(root, root / "record", readme=False)
+    speed = {"td3_updates_per_second": 150.0, "pbrl_group_updates_per_second": 40.0,
+             "rollout_control_steps_per_second": 9000.0, "when": "2026-12-02 12:00 UTC"}
+    write_record(root, root / "record", readme=False, speed=speed)
     assert (root / "record" / "evidence" / "dvc.lock").read_text() == "stages: {}\n"
+    assert "TD3 150 updates/s" in timing_table(root / "record")  # the day's probe is quoted with the times
     assert (root / "record" / "results" / "a.txt").read_text() == "new\n"
     assert not (root / "record" / "stale.txt").exists()
 
@@ -93,3 +96,13 @@ def test_git_tracks_no_stage_output():
     tracked = subprocess.run(["git", "ls-files", "results", "data"], cwd=ROOT, capture_output=True, text=True,
                              check=True).stdout.split()
     assert all(path.endswith(".gitignore") for path in tracked), tracked
+
+
+def test_the_speed_probe_measures_every_rate_it_quotes():
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from speed_probe import probe, summary
+
+    result = probe(quick=True)
+    rates = [v for k, v in result.items() if k.endswith("_per_second")]
+    assert len(rates) == 3 and all(r > 0 for r in rates)
+    assert "updates/s" in summary(result) and result["machine"]["cpus"] >= 1
