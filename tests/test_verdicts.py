@@ -230,3 +230,27 @@ def test_teachers_hold_their_level_is_decided_per_task_and_level_over_teacher_se
     assert failed.verdict == CONTRADICTED
     one_seed = decide(Evidence(results({(t, "medium"): [0.99] for t in TASKS})), finding)[0]
     assert one_seed.verdict == INCONCLUSIVE
+
+
+def test_teachers_plateau_compares_the_last_quarter_of_each_curve_with_the_third():
+    """A curve flat over its second half reproduces the plateau; one still rising by 0.3 dataset
+    returns contradicts it (the fixed step budget stopped a climbing teacher)."""
+    from mop_core.report.results import Run
+
+    def run(seed: int, late: float) -> Run:
+        curve = [{"step": str(s), "return_mean": str(r)} for s, r in
+                 ((5000, 300.0), (10000, 500.0), (12500, 500.0), (15000, 500.0), (17500, 500.0 + late),
+                                  (20000, 500.0 + late))]
+        return Run({"task": "stand", "level": "medium", "actor": "deterministic"}, seed,
+                   {"gradient_steps": 20000, "dataset_return_mean": 500.0}, curve)
+
+    def verdict(lates: list[float]):
+        results = StudyResults(tasks=["stand"], levels=["medium"], settings={},
+                               teachers=[run(s, late) for s, late in enumerate(lates)])
+        return decide(Evidence(results), [FINDINGS["teachers_plateau"]])[0]
+
+    flat = verdict([2.0, -3.0, 1.0])
+    assert flat.verdict == REPRODUCED and flat.effects[0].n == 3
+    climbing = verdict([150.0, 160.0, 140.0])  # last quarter (15k, 20k]: +0.3 dataset returns over (10k, 15k]
+    assert climbing.verdict == CONTRADICTED
+    assert climbing.effects[0].value == pytest.approx((150 + 160 + 140) / 3 / 500.0)

@@ -87,11 +87,30 @@ class Evidence:
         sd = run.get("std")
         return self.normalise(task, run["mean"]), None if sd is None else sd * self.scale(task), run["n"]
 
+    def teacher_runs(self, task: str, level: str, actor: str = "deterministic") -> list:
+        """The teacher runs (every training seed) of one task, level and actor type."""
+        return [r for r in self.results.teachers if r.key == {"task": task, "level": level, "actor": actor}]
+
     def teacher_ratios(self, task: str, level: str, actor: str = "deterministic") -> Seeds | None:
         """Per training seed: the teacher's final return over its dataset's mean return (the teachers
         stage's ``return_ratio``, its own final evaluation)."""
-        out = {r.seed: float(r.metrics["return_ratio"]) for r in self.results.teachers
-               if r.key == {"task": task, "level": level, "actor": actor} and "return_ratio" in r.metrics}
+        out = {r.seed: float(r.metrics["return_ratio"]) for r in self.teacher_runs(task, level, actor)
+               if "return_ratio" in r.metrics}
+        return out or None
+
+    def teacher_late_gain(self, task: str, level: str, actor: str = "deterministic") -> Seeds | None:
+        """Per training seed: how much the teacher's learning curve still rose at the end, in units of its
+        dataset's mean return: the mean evaluation return of the curve's last quarter of gradient steps
+        minus that of its third quarter (None where a curve has no point in either quarter)."""
+        out = {}
+        for run in self.teacher_runs(task, level, actor):
+            steps = float(run.metrics.get("gradient_steps") or 0)
+            points = [(float(row["step"]), float(row["return_mean"])) for row in run.curve]
+            third = [r for s, r in points if 0.5 * steps < s <= 0.75 * steps]
+            last = [r for s, r in points if s > 0.75 * steps]
+            scale = float(run.metrics.get("dataset_return_mean") or 0.0)
+            if third and last and scale:
+                out[run.seed] = (float(np.mean(last)) - float(np.mean(third))) / scale
         return out or None
 
     # ---- group names -----------------------------------------------------------------------------

@@ -42,6 +42,7 @@ from mop_core.report.measures import (
     student_vs_teacher,
     substitute_sharing_tau,
     teacher_vs_teacher,
+    teachers_late_gain,
     teachers_reach,
     untrained_minus,
     width_measure,
@@ -57,6 +58,7 @@ from mop_core.report.verdicts import (
 )
 
 TEACHER_RATIO = 0.9  # a teacher holds its level: >= 0.9 of its dataset's mean return
+PLATEAU_MARGIN = 0.1  # a teacher's curve has plateaued: its last quarter within 0.1 dataset returns of its third
 RETURN_MARGIN = 10.0  # normalised points: "matches" = within 10% of the expert-random range
 TAU_MARGIN = 0.1  # Kendall tau: "a level similar to", "0.067" = within 0.1
 
@@ -266,6 +268,11 @@ OWN: list[Finding] = [
             "every task and level.", None,
             f"teacher return / dataset return - {TEACHER_RATIO} (the teacher's final evaluation)", ABOVE,
             teachers_reach(TEACHER_RATIO)),
+    Finding("teachers_plateau", "this run",
+            "The teachers' step budget reaches a plateau: no deterministic teacher's learning curve still rises "
+            "or falls over its last quarter of gradient steps.", None,
+            "mean curve return over the last quarter of steps - over the third quarter, in dataset returns",
+            equal_within(PLATEAU_MARGIN), teachers_late_gain),
     Finding("training_lowers_tau", "this run",
             "Distillation lowers per-state tau: every plain MOP student ends below its own value at initialisation.",
             None, "plain students: final - initial per-state tau-a on the probe states", BELOW, untrained_minus),

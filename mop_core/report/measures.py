@@ -92,6 +92,14 @@ def teachers_reach(ratio: float) -> Callable[[Evidence], list[Effect]]:
     return measure
 
 
+def teachers_late_gain(ev: Evidence) -> list[Effect]:
+    """Per task and teacher level: deterministic teachers' curve rise over the last quarter of their
+    gradient steps (in dataset returns), over training seeds: ~0 when the fixed step budget reached a
+    plateau."""
+    return [versus_constant(f"{task} {level}", ev.teacher_late_gain(task, level), 0.0)
+            for level in ev.results.levels for task in ev.tasks]
+
+
 def probe_tau_vs(x: Variant | None, y: Variant | None = None, layers: Sequence[int] | None = None, at_y: str = "final"
                  ) -> Callable[[Evidence], list[Effect]]:
     """Per layer: per-state tau-a on the probe states of students x - students y, paired by seed."""
