@@ -100,6 +100,32 @@ def readme_with_timings(readme: str, record: Path) -> str:
     return README_BLOCK.sub(lambda m: m.group(1) + timing_table(record) + "\n" + m.group(2), readme)
 
 
+def pipeline_stages(root: Path) -> set[str]:
+    """The names of every stage entry ``root``'s dvc.yaml defines now (matrix entries expanded)."""
+    from dvc.repo import Repo
+
+    with Repo(str(root)) as repo:
+        return {stage.name for stage in repo.index.stages}
+
+
+def prune_lock(root: Path) -> list[str]:
+    """Remove from ``root``'s dvc.lock the entries of stages its dvc.yaml no longer defines (a family a
+    profile dropped: DVC keeps them, treeverse/dvc#5293), so that the lock and the record describe this
+    pipeline's run only. Returns the removed entries' names."""
+    lock_path = root / "dvc.lock"
+    if not (root / "dvc.yaml").is_file():  # no pipeline to compare with
+        return []
+    lock = yaml.safe_load(lock_path.read_text())
+    stale = sorted(set(lock.get("stages", {})) - pipeline_stages(root))
+    if stale:
+        for name in stale:
+            del lock["stages"][name]
+        staged = lock_path.with_name(".dvc.lock.tmp")
+        staged.write_text(yaml.safe_dump(lock, sort_keys=False))
+        staged.replace(lock_path)
+    return stale
+
+
 def write_record(root: Path, record: Path, readme: bool = True, speed: dict | None = None) -> int:
     """Copy ``root``'s recorded outputs and dvc.lock to ``record`` with the day's speed probe (``speed``;
     None: measure it now); with ``readme``, rewrite README.md's time table from it (the quick profile's
@@ -107,6 +133,9 @@ def write_record(root: Path, record: Path, readme: bool = True, speed: dict | No
     lock_path = root / "dvc.lock"
     if not lock_path.is_file():
         raise SystemExit(f"error: {lock_path}: not found; run `dvc repro` first")
+    stale = prune_lock(root)
+    if stale:
+        print(f"dvc.lock: removed {len(stale)} entries of stages dvc.yaml no longer defines: {', '.join(stale)}")
     lock = yaml.safe_load(lock_path.read_text())
     outputs = recorded_outputs(lock)
     changed = [p for p, md5 in outputs.items() if not (root / p).exists() or output_md5(root / p) != md5]

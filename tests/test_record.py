@@ -106,3 +106,17 @@ def test_the_speed_probe_measures_every_rate_it_quotes():
     rates = [v for k, v in result.items() if k.endswith("_per_second")]
     assert len(rates) == 3 and all(r > 0 for r in rates)
     assert "updates/s" in summary(result) and result["machine"]["cpus"] >= 1
+
+
+def test_a_stage_the_pipeline_no_longer_defines_leaves_dvc_lock_before_recording(tmp_path):
+    """DVC keeps the lock entries of stages removed from dvc.yaml (treeverse/dvc#5293): a profile that
+    drops a family would otherwise record outputs no stage of it makes."""
+    from record import prune_lock
+
+    subprocess.run(["dvc", "init", "--no-scm", "-q"], cwd=tmp_path, check=True)
+    (tmp_path / "dvc.yaml").write_text("stages:\n  kept:\n    matrix:\n      n: [1]\n    cmd: echo ${item.n}\n")
+    entry = {"cmd": "echo", "outs": [{"path": "results/x", "md5": "0" * 32}]}
+    (tmp_path / "dvc.lock").write_text(yaml.safe_dump({"schema": "2.0", "stages": {"kept@1": entry, "gone@2": entry}}))
+    assert prune_lock(tmp_path) == ["gone@2"]
+    assert set(yaml.safe_load((tmp_path / "dvc.lock").read_text())["stages"]) == {"kept@1"}
+    assert prune_lock(tmp_path) == []
