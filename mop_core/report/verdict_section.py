@@ -103,9 +103,12 @@ def summary_prose(decisions: Sequence[Decision], whose: str) -> str:
 def scale_row(params: Mapping[str, Any]) -> dict[str, str]:
     """A profile's scale: what the verdicts' n and power follow from."""
     collect, teachers, distill = params["collect"], params["train_teachers"], params["distill"]
-    datasets = collect.get("datasets", {})
-    return {"behaviour TD3 gradient steps (expert / medium)":
-            f"{collect['schedule']['total_steps']} / {collect['schedule'].get('medium_step')}",
+    datasets, schedule = collect.get("datasets", {}), collect["schedule"]
+    steps = (f"{schedule['total_steps']} / {schedule.get('medium_step')}" if not schedule.get("expert_return") else
+             f"until the expert returns {schedule['expert_return']} over {schedule.get('expert_eval_episodes')} "
+             f"episodes (at most {schedule['total_steps']}; each task's steps: section 1) / the snapshot nearest "
+             "the published medium return")
+    return {"behaviour TD3 gradient steps (expert / medium)": steps,
             "dataset episodes (expert / medium)":
             f"{datasets.get('expert_episodes', 'n/a')} / {datasets.get('medium_episodes', 'n/a')}",
             "teacher levels": ", ".join(params["study"]["levels"]),
