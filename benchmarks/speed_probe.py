@@ -10,8 +10,8 @@ kinds of work at fixed sizes that never follow a profile (so probes of different
   ensemble 5, batch 256, 1 OOD action) on 2 threads, as a quick teacher stage runs them;
 - ``rollout_control_steps_per_second``: 10 walkers stepped together under one batched policy, 1 thread.
 
-Each rate is the median of 3 timed blocks after a warm-up block. ``scripts/record.py`` runs it after a
-study and stores it beside the record (``speed_probe.json``); the README's time table quotes it.
+Each rate is the median of 3 timed blocks after a warm-up block (bench_rates.per_second).
+``scripts/record.py`` runs it after a study and stores it beside the record (``speed_probe.json``); the README's time table quotes it.
 
 Run: ``python benchmarks/speed_probe.py [--out probe.json]``
 """
@@ -31,6 +31,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_pbrl import random_batch  # noqa: E402
+from bench_rates import per_second  # noqa: E402
 
 from mop_core.agents.pbrl import PBRLConfig  # noqa: E402
 from mop_core.agents.pbrl_group import PBRLGroup, stack_batches  # noqa: E402
@@ -48,41 +49,29 @@ PBRL_PROBE = {"hidden_sizes": [128, 128], "ensemble_size": 5, "batch_size": 256,
               "learning_rate": 1.0e-3, "actor": "deterministic"}
 PBRL_GROUP = 2
 ROLLOUT_ENVS, ROLLOUT_STEPS = 10, 200
-
-
-def median_rate(step, count: int, repeats: int = 3) -> float:
-    """Median calls/s of ``step`` over ``repeats`` blocks of ``count`` calls, after one warm-up block."""
-    def block() -> float:
-        start = time.perf_counter()
-        for _ in range(count):
-            step()
-        return time.perf_counter() - start
-
-    block()
-    times = sorted(block() for _ in range(repeats))
-    return count / times[len(times) // 2]
+CPU = torch.device("cpu")
 
 
 def td3_rate(count: int) -> float:
     configure_compute(1)
-    agent = TD3(from_mapping(TD3Config, TD3_PROBE, "td3 probe"), 24, 6, 0, torch.device("cpu"))
+    agent = TD3(from_mapping(TD3Config, TD3_PROBE, "td3 probe"), 24, 6, 0, CPU)
     batch = random_batch(TD3_PROBE["batch_size"])
-    return median_rate(lambda: agent.update(batch), count)
+    return per_second(lambda: agent.update(batch), count, CPU)
 
 
 def pbrl_group_rate(count: int) -> float:
     configure_compute(2)
     config = from_mapping(PBRLConfig, PBRL_PROBE, "pbrl probe")
-    group = PBRLGroup(config, 24, 6, list(range(PBRL_GROUP)), torch.device("cpu"))
+    group = PBRLGroup(config, 24, 6, list(range(PBRL_GROUP)), CPU)
     batch = stack_batches([random_batch(config.batch_size, seed) for seed in range(PBRL_GROUP)])
-    return median_rate(lambda: group.update(batch), count)
+    return per_second(lambda: group.update(batch), count, CPU)
 
 
 def rollout_rate() -> float:
     configure_compute(1)
-    policy = student_policy(Student(StudentConfig(), 24, 6, 2).eval(), 0, torch.device("cpu"))
-    return median_rate(lambda: episode_returns(policy, "walk", list(range(ROLLOUT_ENVS)), ROLLOUT_STEPS,
-                                               ROLLOUT_ENVS), 1) * ROLLOUT_ENVS * ROLLOUT_STEPS
+    policy = student_policy(Student(StudentConfig(), 24, 6, 2).eval(), 0, CPU)
+    return per_second(lambda: episode_returns(policy, "walk", list(range(ROLLOUT_ENVS)), ROLLOUT_STEPS,
+                                              ROLLOUT_ENVS), 1, CPU) * ROLLOUT_ENVS * ROLLOUT_STEPS
 
 
 def probe(quick: bool = False) -> dict:
@@ -91,7 +80,7 @@ def probe(quick: bool = False) -> dict:
     result = {"td3_updates_per_second": td3_rate(5 if quick else 300),
               "pbrl_group_updates_per_second": pbrl_group_rate(3 if quick else 100),
               "rollout_control_steps_per_second": rollout_rate(),
-              "machine": machine_facts(torch.device("cpu")),
+              "machine": machine_facts(CPU),
               "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
     result["seconds"] = round(time.perf_counter() - start, 1)
     return result
