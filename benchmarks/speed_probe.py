@@ -11,7 +11,8 @@ kinds of work at fixed sizes that never follow a profile (so probes of different
 - ``rollout_control_steps_per_second``: 10 walkers stepped together under one batched policy, 1 thread.
 
 Each rate is the median of 3 timed blocks after a warm-up block (bench_rates.per_second).
-``scripts/record.py`` runs it after a study and stores it beside the record (``speed_probe.json``); the README's time table quotes it.
+``scripts/record.py`` runs it after a study and stores it beside the record (``speed_probe.json``);
+the README's time table quotes it.
 
 Run: ``python benchmarks/speed_probe.py [--out probe.json]``
 """
