@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import os
@@ -23,8 +24,13 @@ from bad_inputs import copy_project  # noqa: E402
 pytestmark = pytest.mark.slow
 
 
-def _run(args: list[str], cwd: Path, check: bool = True) -> subprocess.CompletedProcess:
-    env = os.environ | {"MOP_PROGRESS": "0", "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+def _run(args: list[str] | str, cwd: Path, check: bool = True) -> subprocess.CompletedProcess:
+    """``args`` in ``cwd`` as a user runs it: Python writes its bytecode caches beside the code (its default;
+    they once made every clone's dependency hashes its own), no progress bars. A string runs in bash."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    env |= {"MOP_PROGRESS": "0", "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    if isinstance(args, str):
+        args = ["bash", "-c", f"set -euo pipefail; {args}"]
     result = subprocess.run(args, cwd=cwd, env=env, capture_output=True, text=True)
     if check and result.returncode != 0:
         raise AssertionError(f"{' '.join(args)} failed ({result.returncode}):\n{result.stdout}\n{result.stderr}")
@@ -250,9 +256,14 @@ TIMINGS_SHOW = "dvc metrics show results/timings"
 HEADLINE_DIFF = "dvc metrics diff --targets results/metrics.json"
 EXP_SHOW = (r"dvc exp show --drop '.*' --keep "
             r"'Experiment|distill\.(learning_rate|lr_schedule)|normalised_return|per_state_tau_a'")
+# The README's recipe for several machines, run verbatim (the remote's path aside) by the cross-clone test
+EXP_RUN = "dvc exp run -S distill.learning_rate=3e-4"
+REMOTE_SETUP = 'dvc remote add -d shared /mnt/shared/mop-dvc && git commit -am "shared remote" && git push'
 RUN_CACHE_PUSH = "dvc push --run-cache"
-EXP_PUSH = "dvc exp push origin"
-RUN_CACHE_REPRODUCE = "dvc exp run --pull -S distill.learning_rate=0.003 -S distill.lr_schedule=cosine"
+EXP_PUSH = "dvc exp push --run-cache origin"
+RESTORE_ON_B = "git pull && dvc exp run --pull -S distill.learning_rate=3e-4"
+RESTORE_STUDY_ON_B = "dvc repro --pull"
+SHARED_CACHE = "dvc cache dir --local /mnt/shared/mop-cache"
 # the queued experiment's smaller grid (no state-shift or single-task students: the suite's time)
 SMALLER_GRID = ("-S", "state_shift.datasets=[]", "-S", "state_shift.widths=[]", "-S", "state_shift.data_percents=[]",
                 "-S", "state_shift.corrections=[]", "-S", "state_shift.correction_datasets=[]",
@@ -265,9 +276,9 @@ def _command(line: str, *extra: str) -> list[str]:
 
 def test_the_readme_shows_the_tested_commands():
     readme = (ROOT / "README.md").read_text()
-    for line in (HEADLINE_SHOW, TIMINGS_SHOW, HEADLINE_DIFF, EXP_SHOW, RUN_CACHE_PUSH, EXP_PUSH):
+    for line in (HEADLINE_SHOW, TIMINGS_SHOW, HEADLINE_DIFF, EXP_SHOW, EXP_RUN, REMOTE_SETUP, RUN_CACHE_PUSH,
+                 EXP_PUSH, RESTORE_ON_B, RESTORE_STUDY_ON_B, SHARED_CACHE):
         assert line in readme, line
-    assert "dvc exp run --pull -S" in readme
 
 
 def markdown_blocks(text: str) -> list[tuple[str, str]]:
@@ -475,27 +486,6 @@ def test_a_changed_teacher_makes_only_its_own_students_stale(repo):
     assert not {s for s in json.loads(_run(["dvc", "status", "--json"], repo).stdout) if s.startswith("distill")}
 
 
-def test_exp_run_of_distill_param_reruns_only_distill_and_what_reads_students(repo):
-    out = _run(["dvc", "exp", "run", "-S", "distill.learning_rate=0.002"], repo).stdout
-    assert _stages_run(out) == {"params", "distill@mse-medium", "distill@q-medium", "distill@kl-medium",
-                                "distill_width@8", "distill_ranking@pairwise", "distill_single@stand",
-                                "distill_single@walk", "distill_sharing@medium-ds",
-                                "distill_sharing@medium-oqs_own", "distill_sharing@medium-oqs_target",
-                                "distill_substitute@stand_still-medium-mop",
-                                "distill_substitute@stand_still-medium-oqs_own", "distill_composed@online-8",
-                                "distill_composed@random99-8", "distill_size@50",
-                                "distill_corrected@reweight-random99-8", "distill_corrected@dagger-random99-8",
-                                "state_shift", "eval",
-                                "shared_computation", "report"}
-    metrics = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
-    assert "student_mse_medium" in metrics["stand"]
-    diff = json.loads(_run(_command(HEADLINE_DIFF, "--json"), repo).stdout)  # against the last commit
-    assert set(diff) == {"results/metrics.json"}
-    changed = diff["results/metrics.json"]
-    assert any(key.startswith("normalised_return.student_") for key in changed)
-    assert not any(key.startswith("normalised_return.teacher_") for key in changed)  # teachers did not rerun
-
-
 def _experiment_headline(repo: Path, key: str, value) -> dict:
     """results/metrics.json of the experiment whose distill.<key> is ``value`` (``dvc exp show --json``)."""
     for base in json.loads(_run(["dvc", "exp", "show", "--json"], repo).stdout):
@@ -506,15 +496,9 @@ def _experiment_headline(repo: Path, key: str, value) -> dict:
     raise AssertionError(f"no experiment with distill.{key} = {value!r}")
 
 
-def test_queued_sweep_and_the_run_cache_shared_through_a_remote(repo, tmp_path):
+def test_queued_sweep_runs_and_shows_in_exp_show(repo):
     _run(["git", "checkout", "-q", "--", "."], repo)
     _run(["dvc", "checkout", "-q"], repo)
-    remote = tmp_path / "remote"  # the machines' shared DVC remote and Git remote
-    _run(["dvc", "remote", "add", "-d", "shared", str(remote)], repo)
-    _commit(repo, "shared remote")
-    _run(["git", "init", "-q", "--bare", str(tmp_path / "shared.git")], tmp_path)
-    _run(["git", "remote", "add", "origin", str(tmp_path / "shared.git")], repo)
-    _run(["git", "push", "-q", "origin", "HEAD"], repo)
     # the tiny profile is a complete params file: -S can set any key (lr_schedule is constant there)
     _run(["dvc", "exp", "run", "--queue", "-S", "distill.learning_rate=0.003", "-S", "distill.lr_schedule=cosine",
           *SMALLER_GRID], repo)
@@ -524,21 +508,101 @@ def test_queued_sweep_and_the_run_cache_shared_through_a_remote(repo, tmp_path):
     table = _run(_command(EXP_SHOW, "--md"), repo).stdout
     assert "0.003" in table and "cosine" in table and "normalised_return.student_mse_medium.stand" in table
     assert "seconds" not in table and "Created" not in table
-    machine_a = _experiment_headline(repo, "learning_rate", 0.003)
+    assert "normalised_return" in json.dumps(_experiment_headline(repo, "learning_rate", 0.003))
 
-    # machine B: a clone of the shared Git remote; it reproduces A's experiment from the run cache:
-    # every stage restored (outputs pulled), none executed. `dvc push --run-cache` shares the
-    # workspace's outputs and run records; a queued experiment's outputs live in its experiment
-    # commit, which `dvc exp push` shares (with the run cache: DVC's default)
+
+# the stages a distill parameter changes: distill, every student family and what reads students
+EXPERIMENT_STAGES = {"params", "distill@mse-medium", "distill@q-medium", "distill@kl-medium", "distill_width@8",
+                     "distill_ranking@pairwise", "distill_single@stand", "distill_single@walk",
+                     "distill_sharing@medium-ds", "distill_sharing@medium-oqs_own", "distill_sharing@medium-oqs_target",
+                     "distill_substitute@stand_still-medium-mop", "distill_substitute@stand_still-medium-oqs_own",
+                     "distill_composed@online-8", "distill_composed@random99-8", "distill_size@50",
+                     "distill_corrected@reweight-random99-8", "distill_corrected@dagger-random99-8",
+                     "state_shift", "eval", "shared_computation", "report"}
+
+
+def _stages_restored(out: str) -> set[str]:
+    restored = "is cached - skipping run, checking out outputs"
+    return {line.split("'")[1] for line in out.splitlines() if line.endswith(restored)}
+
+
+def _outputs(root: Path) -> dict[str, str]:
+    """Every file of every output dvc.lock records under ``root``: path -> md5 of its bytes."""
+    lock = yaml.safe_load((root / "dvc.lock").read_text())
+    paths = {out["path"] for stage in lock["stages"].values() for out in stage.get("outs", [])}
+    files = {}
+    for path in sorted(paths):
+        target = root / path
+        for file in sorted(target.rglob("*")) if target.is_dir() else [target]:
+            if file.is_file() and file.name != ".gitignore" and "__pycache__" not in file.parts:
+                files[file.relative_to(root).as_posix()] = hashlib.md5(file.read_bytes()).hexdigest()
+    return files
+
+
+def test_a_workspace_experiment_is_restored_on_another_clone_through_a_shared_remote(repo, tmp_path):
+    """The README's recipe, verbatim but for the remote's path: machine A (the fixture's clone) runs an
+    experiment and pushes it, machine B (another clone) restores it from the run cache, executing nothing,
+    with A's outputs. Python writes bytecode caches in both clones (see _run): .dvcignore keeps them out of
+    the code's dependency hashes, which they made different in every clone."""
+    _run(["git", "checkout", "-q", "--", "."], repo)
+    _run(["dvc", "checkout", "-q"], repo)
+    _commit(repo, "the study")  # its dvc.lock
+    for key, value in (("user.name", "t"), ("user.email", "t@t")):
+        _run(["git", "config", key, value], repo)
+    origin = tmp_path / "shared.git"  # the machines' Git remote
+    _run(["git", "init", "-q", "--bare", str(origin)], tmp_path)
+    _run(["git", "remote", "add", "origin", str(origin)], repo)
+    _run(["git", "push", "-q", "-u", "origin", "HEAD"], repo)
+    _run(REMOTE_SETUP.replace("/mnt/shared/mop-dvc", str(tmp_path / "remote")), repo)
+    # the committed study's outputs first: `push --run-cache` sends every run record but only the
+    # workspace's outputs (treeverse/dvc#10472), and the experiment replaces the students in the workspace
     _run(_command(RUN_CACHE_PUSH), repo)
-    _run(_command(EXP_PUSH), repo)
-    clone = tmp_path / "clone"
-    _run(["git", "clone", "-q", str(tmp_path / "shared.git"), str(clone)], tmp_path)
-    out = _run(_command(RUN_CACHE_REPRODUCE, *SMALLER_GRID), clone).stdout
+
+    out = _run(_command(EXP_RUN), repo).stdout  # a distill parameter reruns distill and what reads students
+    assert _stages_run(out) == EXPERIMENT_STAGES
+    diff = json.loads(_run(_command(HEADLINE_DIFF, "--json"), repo).stdout)  # against the last commit
+    changed = diff["results/metrics.json"]
+    assert any(key.startswith("normalised_return.student_") for key in changed)
+    assert not any(key.startswith("normalised_return.teacher_") for key in changed)  # teachers did not rerun
+    machine_a = _outputs(repo)
+    _run(_command(EXP_PUSH), repo)  # the experiment's commit, its outputs and its stage runs' records
+
+    machine_b = tmp_path / "B"
+    _run(["git", "clone", "-q", str(origin), str(machine_b)], tmp_path)
+    out = _run(_command(RESTORE_STUDY_ON_B), machine_b).stdout  # the committed study first: nothing runs
     assert not _stages_run(out), out
-    assert out.count("is cached - skipping run") >= 5  # params, the 3 students, eval, ...
-    assert json.loads((clone / "results" / "metrics.json").read_text()) == machine_a
-    assert (clone / "data" / "students" / "mse-medium" / "mse-medium-0.pt").is_file()
+    out = _run(RESTORE_ON_B, machine_b).stdout
+    assert not _stages_run(out), out
+    assert _stages_restored(out) == EXPERIMENT_STAGES
+    assert _outputs(machine_b) == machine_a
+    assert (machine_b / "dvc.lock").read_text() == (repo / "dvc.lock").read_text()
+
+
+def test_a_clone_sharing_the_cache_directory_restores_what_another_ran(repo, tmp_path):
+    """The scale-out workers' set-up: clones on one machine with one `cache.dir`. A clone at the study's
+    commit restores every stage from the shared cache, and a stage one clone runs is restored in the other."""
+    _run(["git", "checkout", "-q", "--", "."], repo)
+    _run(["dvc", "checkout", "-q"], repo)
+    _commit(repo, "the study")  # its dvc.lock
+    worker = tmp_path / "worker"
+    _run(["git", "clone", "-q", str(repo), str(worker)], tmp_path)
+    _run(_command(SHARED_CACHE.replace("/mnt/shared/mop-cache", str(repo / ".dvc" / "cache"))), worker)
+    out = _run(["dvc", "repro"], worker).stdout
+    assert not _stages_run(out), out
+    assert _outputs(worker) == _outputs(repo)
+
+    stage = "distill@mse-medium"  # the worker runs one stage of a changed study, the coordinator restores it
+    for root in (worker, repo):
+        params = yaml.safe_load((root / "params.yaml").read_text())
+        params["distill"]["learning_rate"] = 5e-4
+        (root / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    assert _stages_run(_run(["dvc", "repro", "-s", stage], worker).stdout) == {stage}
+    out = _run(["dvc", "repro", "-s", stage], repo).stdout
+    assert not _stages_run(out) and f"Stage '{stage}' is cached - skipping run" in out, out
+    student = Path("data/students/mse-medium/mse-medium-0.pt")
+    assert (repo / student).read_bytes() == (worker / student).read_bytes()
+    _run(["git", "checkout", "-q", "--", "."], repo)
+    _run(["dvc", "checkout", "-q"], repo)
 
 
 def test_bad_parameter_fails_before_compute_and_names_the_key(repo, tmp_path):
@@ -617,3 +681,4 @@ def test_a_bad_param_stops_dvc_repro_before_any_output_is_deleted(repo):
     assert "error: distill.learning_rate: expected a finite number, got inf" in result.stderr + result.stdout
     assert _stages_run(result.stdout) == {"params"}
     assert {path: path.read_bytes() for path in outputs} == before
+
