@@ -29,6 +29,7 @@ from mop_core.shift.compose import (
     compose_config,
     compose_jobs,
     compose_metrics,
+    compose_seconds,
     compose_teacher_data,
     summary_lines,
 )
@@ -46,11 +47,11 @@ def main() -> None:
     require_inputs([t.paths.checkpoint for t in teachers], "train_teachers")
     jobs = compose_jobs(teachers, config, study.seed, study.episode_length)
     summaries = parallel_map(compose_teacher_data, jobs, grid.workers, "compose", progress_enabled(study.progress))
-    metrics = compose_metrics(teachers, summaries)
+    metrics, seconds = compose_metrics(teachers, summaries), compose_seconds(teachers, summaries)
     write_json(COMPOSE_METRICS, metrics)
-    write_timing(timing_file("compose"), time.perf_counter() - started, "cpu", workers=grid.workers,
-                 tasks={key: summary["seconds"] for key, summary in metrics.items()})
-    print("\n".join(summary_lines(metrics)) if jobs else "compose: state_shift.datasets is empty, nothing composed")
+    write_timing(timing_file("compose"), time.perf_counter() - started, "cpu", workers=grid.workers, tasks=seconds)
+    print("\n".join(summary_lines(metrics, seconds)) if jobs
+          else "compose: state_shift.datasets is empty, nothing composed")
     if not jobs:  # the stage's output folder exists even when empty
         composed_file("-", "-", "-").parent.mkdir(parents=True, exist_ok=True)
 

@@ -21,6 +21,8 @@ from mop_core.shift.compose import (
     Composition,
     compose_config,
     compose_jobs,
+    compose_metrics,
+    compose_seconds,
     compose_task,
     dataset_writer,
     random_policy,
@@ -134,8 +136,10 @@ def test_the_composing_teachers_are_the_ones_the_shift_students_learn_from(tiny_
     params["state_shift"].update(datasets=[], widths=[], correction_datasets=["offline"])
     assert build_catalogue(params).composing_teachers == ()
     summary = {"datasets": {"online": {"return_mean": 812.4}, "noise": {"return_mean": 300.6}}, "seconds": 12.3}
-    assert summary_lines({"stand-medium": summary}) == ["compose stand-medium: episode returns online 812, noise 301 "
-                                                        "(12 s)"]
+    metrics = compose_metrics(teachers[:1], [summary])
+    assert metrics == {"stand-medium": {"datasets": summary["datasets"]}}  # no wall-clock time in an output
+    assert summary_lines(metrics, compose_seconds(teachers[:1], [summary])) == [
+        "compose stand-medium: episode returns online 812, noise 301 (12 s)"]
 
 
 def test_the_thesis_compositions_and_pool_sizes():

@@ -255,13 +255,21 @@ def compose_jobs(teachers: Sequence[TeacherRun], config: ComposeConfig, seed: in
 
 def compose_metrics(teachers: Sequence[TeacherRun], summaries: Sequence[Mapping]) -> dict[str, Mapping]:
     """The compose stage's metrics (mop_core.storage.layout.COMPOSE_METRICS; the report's composed-data
-    table reads them): per composing teacher, ``<task>-<level>`` -> its :func:`compose_teacher_data` summary."""
-    return {f"{t.task}-{t.level}": summary for t, summary in zip(teachers, summaries, strict=True)}
+    table reads them): per composing teacher, ``<task>-<level>`` -> its :func:`compose_teacher_data` summary
+    without the seconds it took (those go to the timing record: an output holds only what the run computed,
+    so a rerun, or a run on another machine, writes the same bytes)."""
+    return {f"{t.task}-{t.level}": {k: v for k, v in summary.items() if k != "seconds"}
+            for t, summary in zip(teachers, summaries, strict=True)}
 
 
-def summary_lines(metrics: Mapping[str, Mapping]) -> list[str]:
-    """One line per composed task (``<task>-<level>``: :func:`compose_teacher_data`'s summary): each
-    dataset's mean episode return and the seconds it took."""
+def compose_seconds(teachers: Sequence[TeacherRun], summaries: Sequence[Mapping]) -> dict[str, float]:
+    """``<task>-<level>`` -> the seconds its :func:`compose_teacher_data` took (the stage's timing record)."""
+    return {f"{t.task}-{t.level}": summary["seconds"] for t, summary in zip(teachers, summaries, strict=True)}
+
+
+def summary_lines(metrics: Mapping[str, Mapping], seconds: Mapping[str, float]) -> list[str]:
+    """One line per composed task (``<task>-<level>``: :func:`compose_metrics`'s entry): each dataset's
+    mean episode return and the seconds it took."""
     return [f"compose {key}: episode returns "
             + ", ".join(f"{name} {d['return_mean']:.0f}" for name, d in summary["datasets"].items())
-            + f" ({summary['seconds']:.0f} s)" for key, summary in metrics.items()]
+            + f" ({seconds[key]:.0f} s)" for key, summary in metrics.items()]
