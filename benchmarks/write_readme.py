@@ -44,6 +44,7 @@ BENCHES = [
     Bench("distill", "bench_distill.py", threads=True, quick_flag=None),
     Bench("structure", "bench_structure.py", threads=True, quick_flag=None),
     Bench("shift", "bench_shift.py", threads=True, quick_flag=None),
+    Bench("cluster", "bench_cluster.py", threads=False, quick_flag="--makespan-only"),
 ]
 BY_NAME = {b.name: b for b in BENCHES}
 

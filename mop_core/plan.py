@@ -254,6 +254,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--one-level", action="store_true", help="with --scale: one level, one teacher seed")
     parser.add_argument("--max-evaluations", type=int, help="with --scale: learning-curve points per run")
     parser.add_argument("--out", help="where --scale writes the shortened profile")
+    parser.add_argument("--workers", type=int, nargs="+", help="also the makespan on this many workers over the "
+                                                               "DAG (mop_cluster.makespan)")
     args = parser.parse_args(argv)
     params = yaml.safe_load(Path(args.profile).read_text())
     if args.scale is not None:
@@ -268,6 +270,13 @@ def main(argv: list[str] | None = None) -> None:
         parser.error("--rates: a JSON written by benchmarks/bench_rates.py")
     rates = Rates.from_json(json.loads(Path(args.rates).read_text()))
     print(plan_table(params, rates))
+    if args.workers:
+        from mop_cluster.makespan import estimated_seconds, profile_graph, table
+
+        profile, rates_file = Path(args.out if args.scale is not None else args.profile), Path(args.rates)
+        graph = profile_graph(profile)
+        print(f"\nOn N workers, {len(graph.upstream)} entries (a stage's hours split evenly over its entries):\n")
+        print(table(graph, estimated_seconds(profile, rates_file, graph), args.workers))
     print("\nAssumptions: " + " ".join(__doc__.split("Assumptions, printed with the table: ")[1].split()))
 
 

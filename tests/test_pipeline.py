@@ -682,3 +682,32 @@ def test_a_bad_param_stops_dvc_repro_before_any_output_is_deleted(repo):
     assert _stages_run(result.stdout) == {"params"}
     assert {path: path.read_bytes() for path in outputs} == before
 
+
+def _without_timings(outputs: dict[str, str]) -> dict[str, str]:
+    return {path: md5 for path, md5 in outputs.items() if not path.startswith("results/timings/")}
+
+
+def test_the_study_through_mop_cluster_on_two_ray_nodes_equals_the_serial_run(repo, tmp_path):
+    """`mop-cluster repro` on a local cluster of two Ray nodes (a head and a worker node started on this
+    machine): every entry runs in its own clone sharing the DVC cache; the first attempt at relabel dies
+    mid-entry (a killed worker) and Ray retries it; the workspace's own dvc repro then executes nothing, and
+    every output equals the serial run's (the module's fixture), timing records aside."""
+    _run(["git", "checkout", "-q", "--", "."], repo)
+    _run(["dvc", "checkout", "-q"], repo)
+    study = tmp_path / "study"
+    copy_project(ROOT, study)
+    for args in (["init", "-q"], ["add", "-A"], ["-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "s"]):
+        _run(["git", *args], study)
+    port = "6391"
+    env = "MOP_CLUSTER_KILL_ONCE=relabel RAY_USAGE_STATS_ENABLED=0 RAY_AUTH_MODE=disabled"  # one machine: no token
+    try:
+        _run(f"{env} ray start --head --port {port} --num-cpus 2 --num-gpus 0 --include-dashboard false", study)
+        _run(f"{env} ray start --address 127.0.0.1:{port} --num-cpus 2 --num-gpus 0", study)
+        out = _run(f"{env} mop-cluster repro --address 127.0.0.1:{port}", study).stdout
+    finally:
+        _run(["ray", "stop", "--force"], study, check=False)
+    assert "the workspace's dvc repro executed 0 stage(s)" in out, out
+    assert "relabel ran" in out and list((study / ".dvc" / "tmp" / "mop-cluster").glob("killed-relabel")), out
+    assert not _stages_run(_run(["dvc", "repro"], study).stdout)
+    assert json.loads(_run(["dvc", "status", "--json"], study).stdout) == {}
+    assert _without_timings(_outputs(study)) == _without_timings(_outputs(repo))

@@ -1,0 +1,139 @@
+"""The coordinator: stale entries as Ray tasks in DAG order, then one ``dvc repro`` that restores them."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .dag import stage_graph, stale_entries
+from .resources import entry_resources
+from .worker import RAN, EntryResult, run_after
+
+LOCK = Path(".dvc/tmp/mop-cluster.pid")
+
+
+class ClusterError(RuntimeError):
+    """A refusal before any compute, or an entry that failed: one line for the user."""
+
+
+@dataclass
+class ClusterRun:
+    entries: list[str]
+    results: list[EntryResult] = field(default_factory=list)
+    final_ran: list[str] = field(default_factory=list)  # stages the workspace's dvc repro executed
+    seconds: float = 0.0
+
+
+@contextmanager
+def coordinator_lock(root: Path):
+    """One coordinator per workspace: a second is refused, naming the first (its pid)."""
+    path = root / LOCK
+    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+    except FileExistsError:
+        pid = path.read_text().strip() or "?"
+        alive = pid.isdigit() and Path(f"/proc/{pid}").exists()
+        if alive:
+            raise ClusterError(f"{path}: another mop-cluster (pid {pid}) coordinates this workspace") from None
+        path.unlink(missing_ok=True)  # left by a coordinator that died
+        fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+    os.write(fd, str(os.getpid()).encode())
+    os.close(fd)
+    try:
+        yield
+    finally:
+        path.unlink(missing_ok=True)
+
+
+def _git(args: list[str], root: Path) -> str:
+    return subprocess.run(["git", *args], cwd=root, check=True, capture_output=True, text=True).stdout.strip()
+
+
+def _check_committed(root: Path) -> str:
+    """Workers clone HEAD, so every tracked file but dvc.lock must be as committed. Returns HEAD."""
+    status = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root, check=True,
+                            capture_output=True, text=True).stdout
+    dirty = [line[3:] for line in status.splitlines() if line[3:] != "dvc.lock"]
+    if dirty:
+        raise ClusterError(f"{', '.join(dirty)}: uncommitted changes; commit them first (workers clone HEAD)")
+    return _git(["rev-parse", "HEAD"], root)
+
+
+def _cache_dir(root: Path) -> str:
+    out = subprocess.run(["dvc", "cache", "dir"], cwd=root, check=True, capture_output=True, text=True).stdout
+    return out.strip()
+
+
+def repro(root: Path, address: str | None = None, workers: int | None = None, gpus_per_run: float = 0.0,
+          retries: int = 2, scratch: Path | None = None, log=print) -> ClusterRun:
+    """Run ``root``'s stale entries on a Ray cluster, then ``dvc repro`` in ``root`` (restoring them)."""
+    import ray
+
+    root = root.resolve()
+    start = time.perf_counter()
+    with coordinator_lock(root):
+        commit = _check_committed(root)
+        graph = stage_graph(root)
+        entries = stale_entries(root, graph)
+        sized = entry_resources(entries, root / "params.yaml", gpus_per_run)
+        run = ClusterRun(entries)
+        if entries:
+            run.results = _run_on_ray(ray, root, commit, graph.upstream, entries, sized, address, workers,
+                                      gpus_per_run, retries, scratch or root / ".dvc" / "tmp" / "mop-cluster", log)
+        final = subprocess.run(["dvc", "repro"], cwd=root, capture_output=True, text=True)
+        if final.returncode != 0:
+            raise ClusterError(f"dvc repro in {root} failed:\n{final.stdout[-2000:]}{final.stderr[-2000:]}")
+        run.final_ran = [line.split("'")[1] for line in final.stdout.splitlines() if line.startswith(RAN)]
+        run.seconds = time.perf_counter() - start
+        return run
+
+
+def _run_on_ray(ray, root, commit, upstream, entries, sized, address, workers, gpus_per_run, retries, scratch, log):
+    if address:
+        ray.init(address=address, log_to_driver=False)
+    else:
+        ray.init(num_cpus=workers or os.cpu_count(), num_gpus=None if gpus_per_run else 0, log_to_driver=False)
+    try:
+        largest = max((node["Resources"].get("CPU", 0) for node in ray.nodes() if node["Alive"]), default=0)
+        for entry in entries:
+            if sized[entry].cpus > largest:
+                raise ClusterError(f"{entry}: asks for {sized[entry].cpus} CPUs (its params' threads) but the "
+                                   f"largest node of the cluster has {largest:g}; lower its threads")
+        task = ray.remote(run_after)
+        refs = {}
+
+        cache = _cache_dir(root)
+        for entry in entries:  # DAG order: every upstream ref exists before its readers are submitted
+            ups = [refs[u] for u in upstream[entry] if u in refs]
+            refs[entry] = task.options(num_cpus=sized[entry].cpus, num_gpus=sized[entry].gpus, max_retries=retries,
+                                       name=entry).remote(str(root), commit, entry, cache, str(scratch), *ups)
+        waiting = list(refs.values())
+        names = {ref: name for name, ref in refs.items()}
+        try:
+            return _collect(ray, waiting, names, entries, log)
+        except BaseException:  # a failed entry or Ctrl-C: stop every worker
+            for ref in refs.values():
+                ray.cancel(ref, force=True)
+            raise
+    finally:
+        ray.shutdown()
+
+
+def _collect(ray, waiting, names, entries, log) -> list[EntryResult]:
+    results = []
+    while waiting:
+        ready, waiting = ray.wait(waiting, num_returns=1)
+        try:
+            result = ray.get(ready[0])
+        except Exception as exc:  # the entry's EntryFailed, or a worker lost beyond its retries
+            cause = getattr(exc, "cause", None) or exc
+            raise ClusterError(f"{names[ready[0]]}: {cause}") from None
+        results.append(result)
+        log(f"mop-cluster: {result.entry} {'ran' if result.ran else 'restored'} in {result.seconds:.1f} s "
+            f"on {result.node} ({len(results)}/{len(entries)})")
+    return results

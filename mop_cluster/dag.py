@@ -1,0 +1,57 @@
+"""The pipeline as DVC sees it: each stage entry, the entries it reads from, and which must run."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class StageGraph:
+    """``upstream[entry]``: the entries whose outputs ``entry`` depends on (DVC's own edges)."""
+
+    upstream: dict[str, tuple[str, ...]]
+
+    def order(self) -> list[str]:
+        """Every entry after all of its upstream entries (dvc.yaml's order among ready ones)."""
+        done: list[str] = []
+        placed: set[str] = set()
+        pending = list(self.upstream)
+        while pending:
+            ready = [name for name in pending if set(self.upstream[name]) <= placed]
+            if not ready:
+                raise ValueError(f"dvc.yaml: a cycle among {sorted(pending)}")
+            done += ready
+            placed |= set(ready)
+            pending = [name for name in pending if name not in placed]
+        return done
+
+    def downstream_closure(self, entries: set[str]) -> set[str]:
+        """``entries`` and every entry that reads, directly or not, from one of them."""
+        closed = set(entries)
+        for name in self.order():
+            if set(self.upstream[name]) & closed:
+                closed.add(name)
+        return closed
+
+
+def stage_graph(root: Path) -> StageGraph:
+    """The DAG of ``root``'s dvc.yaml, with matrix and foreach entries expanded (``stage@entry``)."""
+    from dvc.repo import Repo
+
+    with Repo(str(root)) as repo:
+        graph = repo.index.graph  # an edge runs from a stage to each stage it depends on
+        return StageGraph({stage.name: tuple(sorted(up.name for up in graph.successors(stage)))
+                           for stage in graph.nodes})
+
+
+def stale_entries(root: Path, graph: StageGraph) -> list[str]:
+    """The entries ``dvc repro`` would run: those ``dvc status`` names and everything downstream of them."""
+    result = subprocess.run(["dvc", "status", "--json"], cwd=root, capture_output=True, text=True)
+    if result.returncode != 0:
+        raise RuntimeError(f"dvc status failed in {root}:\n{result.stderr.strip()}")
+    changed = set(json.loads(result.stdout or "{}")) & set(graph.upstream)
+    closure = graph.downstream_closure(changed)
+    return [name for name in graph.order() if name in closure]
