@@ -544,7 +544,7 @@ def test_a_workspace_experiment_is_restored_on_another_clone_through_a_shared_re
     experiment and pushes it, machine B (another clone) restores it from the run cache, executing nothing,
     with A's outputs. Python writes bytecode caches in both clones (see _run): .dvcignore keeps them out of
     the code's dependency hashes, which they made different in every clone."""
-    _run(["git", "checkout", "-q", "--", "."], repo)
+    _run(["git", "checkout", "-q", "HEAD", "--", "."], repo)  # HEAD: dvc autostages dvc.lock
     _run(["dvc", "checkout", "-q"], repo)
     _commit(repo, "the study")  # its dvc.lock
     for key, value in (("user.name", "t"), ("user.email", "t@t")):
@@ -581,7 +581,7 @@ def test_a_workspace_experiment_is_restored_on_another_clone_through_a_shared_re
 def test_a_clone_sharing_the_cache_directory_restores_what_another_ran(repo, tmp_path):
     """The scale-out workers' set-up: clones on one machine with one `cache.dir`. A clone at the study's
     commit restores every stage from the shared cache, and a stage one clone runs is restored in the other."""
-    _run(["git", "checkout", "-q", "--", "."], repo)
+    _run(["git", "checkout", "-q", "HEAD", "--", "."], repo)  # HEAD: dvc autostages dvc.lock
     _run(["dvc", "checkout", "-q"], repo)
     _commit(repo, "the study")  # its dvc.lock
     worker = tmp_path / "worker"
@@ -601,7 +601,7 @@ def test_a_clone_sharing_the_cache_directory_restores_what_another_ran(repo, tmp
     assert not _stages_run(out) and f"Stage '{stage}' is cached - skipping run" in out, out
     student = Path("data/students/mse-medium/mse-medium-0.pt")
     assert (repo / student).read_bytes() == (worker / student).read_bytes()
-    _run(["git", "checkout", "-q", "--", "."], repo)
+    _run(["git", "checkout", "-q", "HEAD", "--", "."], repo)  # HEAD: dvc autostages dvc.lock
     _run(["dvc", "checkout", "-q"], repo)
 
 
@@ -692,7 +692,7 @@ def test_the_study_through_mop_cluster_on_two_ray_nodes_equals_the_serial_run(re
     machine): every entry runs in its own clone sharing the DVC cache; the first attempt at relabel dies
     mid-entry (a killed worker) and Ray retries it; the workspace's own dvc repro then executes nothing, and
     every output equals the serial run's (the module's fixture), timing records aside."""
-    _run(["git", "checkout", "-q", "--", "."], repo)
+    _run(["git", "checkout", "-q", "HEAD", "--", "."], repo)  # HEAD: dvc autostages dvc.lock
     _run(["dvc", "checkout", "-q"], repo)
     study = tmp_path / "study"
     copy_project(ROOT, study)
