@@ -6,6 +6,7 @@ The tiny study through ``mop-cluster repro`` on a two-node Ray cluster is in tes
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import pytest
 import yaml
@@ -90,3 +91,16 @@ def test_the_makespan_lies_between_the_critical_path_and_the_serial_time():
     assert many.makespan == many.critical_path == 45.0  # collect -> t@1 -> eval
     assert two.makespan == 55.0  # t@1 first (longest remaining path), t@2 and t@3 one after another beside it
     assert two.utilisation == 85.0 / (2 * 55.0)
+
+
+def test_plan_prints_the_makespan_of_a_profiles_dag(capsys):
+    from mop_core.plan import main as plan
+
+    root = Path(__file__).resolve().parents[1]
+    plan([str(root / "profiles" / "tiny.yaml"), "--rates", str(root / "benchmarks" / "gpu" / "rates.json"),
+          "--workers", "1", "64"])
+    out = capsys.readouterr().out
+    rows = [line.split("|") for line in out.splitlines() if line.startswith("| 1 |") or line.startswith("| 64 |")]
+    one, many = ([float(cell) for cell in row[2:5]] for row in rows)  # makespan, critical path, serial
+    assert one[0] == one[2] and many[0] == many[1] <= one[0]  # 1 worker: serial; 64: the critical path
+    assert "entries (a stage's hours split evenly over its entries)" in out
