@@ -17,7 +17,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from mop_core.statistics import seed_interval  # noqa: E402
+from mop_core.statistics import RETURN_BOUNDS, seed_interval  # noqa: E402
 
 CRITERION = 0.9
 
@@ -35,7 +35,7 @@ def teacher_table(root: Path) -> str:
     lines = ["| teachers | task | return / dataset return, per seed | mean [95% CI over seeds] | n | >= 0.9 |",
              "|---|---|---|---|---|---|"]
     for (group, task), by_seed in sorted(ratios.items()):
-        ci = seed_interval(list(by_seed.values()))
+        ci = seed_interval(list(by_seed.values()), bounds=RETURN_BOUNDS)  # a ratio of returns: >= 0
         interval = "no interval (< 3 seeds)" if ci["ci_low"] is None else f"[{ci['ci_low']:.2f}, {ci['ci_high']:.2f}]"
         held = "yes" if ci["ci_low"] is not None and ci["ci_low"] >= CRITERION else (
             "no" if ci["ci_high"] is not None and ci["ci_high"] < CRITERION else "inconclusive")
