@@ -18,7 +18,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 RAN = "Running stage '"
-RESTORED = "is cached - skipping run"
 # fault injection for the tests: the first attempt at this entry dies as a killed node would
 KILL_ONCE = "MOP_CLUSTER_KILL_ONCE"
 
