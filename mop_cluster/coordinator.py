@@ -14,6 +14,7 @@ from .resources import entry_resources
 from .worker import RAN, EntryResult, run_after
 
 LOCK = Path(".dvc/tmp/mop-cluster.pid")
+SCRATCH = Path(".dvc/tmp/mop-cluster")  # the workers' clones
 
 
 class ClusterError(RuntimeError):
@@ -70,7 +71,7 @@ def _cache_dir(root: Path) -> str:
 
 
 def repro(root: Path, address: str | None = None, workers: int | None = None, gpus_per_run: float = 0.0,
-          retries: int = 2, scratch: Path | None = None, log=print) -> ClusterRun:
+          retries: int = 2, scratch: Path | None = None, log=print, auto_cpus: int = 2) -> ClusterRun:
     """Run ``root``'s stale entries on a Ray cluster, then ``dvc repro`` in ``root`` (restoring them)."""
     import ray
 
@@ -80,11 +81,13 @@ def repro(root: Path, address: str | None = None, workers: int | None = None, gp
         commit = _check_committed(root)
         graph = stage_graph(root)
         entries = stale_entries(root, graph)
-        sized = entry_resources(entries, root / "params.yaml", gpus_per_run)
+        sized = entry_resources(entries, root / "params.yaml", gpus_per_run, auto_cpus=auto_cpus)
         run = ClusterRun(entries)
         if entries:
-            run.results = _run_on_ray(ray, root, commit, graph.upstream, entries, sized, address, workers,
-                                      gpus_per_run, retries, scratch or root / ".dvc" / "tmp" / "mop-cluster", log)
+            jobs = [Job(entry, commit, entry, tuple(u for u in graph.upstream[entry] if u in entries))
+                    for entry in entries]
+            run.results = run_on_ray(ray, root, jobs, sized, address, workers, gpus_per_run, retries,
+                                     scratch or root / SCRATCH, log)
         final = subprocess.run(["dvc", "repro"], cwd=root, capture_output=True, text=True)
         if final.returncode != 0:
             raise ClusterError(f"dvc repro in {root} failed:\n{final.stdout[-2000:]}{final.stderr[-2000:]}")
@@ -93,29 +96,44 @@ def repro(root: Path, address: str | None = None, workers: int | None = None, gp
         return run
 
 
-def _run_on_ray(ray, root, commit, upstream, entries, sized, address, workers, gpus_per_run, retries, scratch, log):
+@dataclass(frozen=True)
+class Job:
+    """One Ray task: ``entry`` in a clone at ``commit``, after the jobs keyed ``upstream``."""
+
+    key: str  # unique among a run's jobs (an entry name; with experiments, prefixed by its combination)
+    commit: str
+    entry: str
+    upstream: tuple[str, ...] = ()
+
+
+def run_on_ray(ray, root: Path, jobs: list[Job], sized: dict, address: str | None, workers: int | None,
+               gpus_per_run: float, retries: int, scratch: Path, log) -> list[EntryResult]:
+    """Every job as a Ray task in the given (DAG) order, sized by ``sized[job.key]``; stops them all on
+    the first failure or Ctrl-C."""
     if address:
         ray.init(address=address, log_to_driver=False)
     else:
         ray.init(num_cpus=workers or os.cpu_count(), num_gpus=None if gpus_per_run else 0, log_to_driver=False)
     try:
         largest = max((node["Resources"].get("CPU", 0) for node in ray.nodes() if node["Alive"]), default=0)
-        for entry in entries:
-            if sized[entry].cpus > largest:
-                raise ClusterError(f"{entry}: asks for {sized[entry].cpus} CPUs (its params' threads) but the "
-                                   f"largest node of the cluster has {largest:g}; lower its threads")
+        for job in jobs:
+            if sized[job.key].cpus > largest:
+                raise ClusterError(f"{job.entry}: asks for {sized[job.key].cpus} CPUs (its params' threads) but "
+                                   f"the largest node of the cluster has {largest:g}; lower its threads")
         task = ray.remote(run_after)
         refs = {}
 
         cache = _cache_dir(root)
-        for entry in entries:  # DAG order: every upstream ref exists before its readers are submitted
-            ups = [refs[u] for u in upstream[entry] if u in refs]
-            refs[entry] = task.options(num_cpus=sized[entry].cpus, num_gpus=sized[entry].gpus, max_retries=retries,
-                                       name=entry).remote(str(root), commit, entry, cache, str(scratch), *ups)
+        for job in jobs:  # DAG order: every upstream ref exists before its readers are submitted
+            ups = [refs[u] for u in job.upstream if u in refs]
+            resources = sized[job.key]
+            refs[job.key] = task.options(num_cpus=resources.cpus, num_gpus=resources.gpus, max_retries=retries,
+                                         name=job.key).remote(str(root), job.commit, job.entry, cache, str(scratch),
+                                                              resources.cpus, *ups)
         waiting = list(refs.values())
         names = {ref: name for name, ref in refs.items()}
         try:
-            return _collect(ray, waiting, names, entries, log)
+            return _collect(ray, waiting, names, len(jobs), log)
         except BaseException:  # a failed entry or Ctrl-C: stop every worker
             for ref in refs.values():
                 ray.cancel(ref, force=True)
@@ -124,7 +142,7 @@ def _run_on_ray(ray, root, commit, upstream, entries, sized, address, workers, g
         ray.shutdown()
 
 
-def _collect(ray, waiting, names, entries, log) -> list[EntryResult]:
+def _collect(ray, waiting, names, total: int, log) -> list[EntryResult]:
     results = []
     while waiting:
         ready, waiting = ray.wait(waiting, num_returns=1)
@@ -134,6 +152,6 @@ def _collect(ray, waiting, names, entries, log) -> list[EntryResult]:
             cause = getattr(exc, "cause", None) or exc
             raise ClusterError(f"{names[ready[0]]}: {cause}") from None
         results.append(result)
-        log(f"mop-cluster: {result.entry} {'ran' if result.ran else 'restored'} in {result.seconds:.1f} s "
-            f"on {result.node} ({len(results)}/{len(entries)})")
+        log(f"mop-cluster: {names[ready[0]]} {'ran' if result.ran else 'restored'} in {result.seconds:.1f} s "
+            f"on {result.node} ({len(results)}/{total})")
     return results

@@ -7,6 +7,10 @@ import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
+# entries whose output does not change with the params they check: the params stage writes the same line
+# (data/params_checked.txt) for every valid params.yaml and fails on any other
+CHECKS = ("params",)
+
 
 @dataclass(frozen=True)
 class StageGraph:
@@ -29,10 +33,11 @@ class StageGraph:
         return done
 
     def downstream_closure(self, entries: set[str]) -> set[str]:
-        """``entries`` and every entry that reads, directly or not, from one of them."""
+        """``entries`` and every entry that reads, directly or not, from one of them, except through a
+        CHECKS entry (its output is the same for every valid params file, so DVC skips its readers)."""
         closed = set(entries)
         for name in self.order():
-            if set(self.upstream[name]) & closed:
+            if set(self.upstream[name]) & (closed - set(CHECKS)):
                 closed.add(name)
         return closed
 

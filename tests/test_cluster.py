@@ -24,6 +24,8 @@ def test_order_puts_every_entry_after_its_upstream_and_the_closure_follows_reade
     for entry, ups in graph.upstream.items():
         assert all(order.index(up) < order.index(entry) for up in ups)
     assert graph.downstream_closure({"distill@b"}) == {"distill@b", "eval", "report"}
+    checked = StageGraph({"params": (), "collect": ("params",), "eval": ("collect",)})  # the params check's
+    assert checked.downstream_closure({"params"}) == {"params"}  # output is the same for any valid file
     with pytest.raises(ValueError, match="cycle"):
         StageGraph({"a": ("b",), "b": ("a",)}).order()
 
@@ -104,3 +106,46 @@ def test_plan_prints_the_makespan_of_a_profiles_dag(capsys):
     one, many = ([float(cell) for cell in row[2:5]] for row in rows)  # makespan, critical path, serial
     assert one[0] == one[2] and many[0] == many[1] <= one[0]  # 1 worker: serial; 64: the critical path
     assert "entries (a stage's hours split evenly over its entries)" in out
+
+
+def test_a_sweep_is_the_grid_of_every_set_and_a_misspelt_key_is_refused():
+    from mop_cluster.experiments import set_values, sweep
+
+    assert sweep(["distill.learning_rate=3e-4,1e-3", "eval.episodes=5"]) == [
+        ("distill.learning_rate=0.0003", "eval.episodes=5"), ("distill.learning_rate=0.001", "eval.episodes=5")]
+    with pytest.raises(ValueError, match="-S distill.learning_rate: expected key=value"):
+        sweep(["distill.learning_rate"])
+    text = set_values("distill:\n  learning_rate: 0.001  # a comment\n  seeds: [0]\n",
+                      ("distill.learning_rate=3e-4", "distill.seeds=[0,1]"))
+    assert yaml.safe_load(text) == {"distill": {"learning_rate": 3e-4, "seeds": [0, 1]}} and "# a comment" in text
+    with pytest.raises(KeyError, match="-S distill.learning_rat=1: not a params.yaml key"):
+        set_values(text, ("distill.learning_rat=1",))
+
+
+def test_an_experiment_commit_holds_its_values_and_leaves_the_workspace_alone(tmp_path):
+    import subprocess
+
+    from mop_cluster.experiments import experiment_commit
+
+    def git(*args: str) -> str:
+        return subprocess.run(["git", *args], cwd=tmp_path, check=True, capture_output=True, text=True).stdout
+
+    git("init", "-q")
+    (tmp_path / "params.yaml").write_text("distill:\n  learning_rate: 0.001  # a comment\n")
+    (tmp_path / "other.txt").write_text("x\n")
+    git("add", ".")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "study")
+    head = git("rev-parse", "HEAD").strip()
+    commit = experiment_commit(tmp_path, head, ("distill.learning_rate=3e-4",))
+    assert yaml.safe_load(git("show", f"{commit}:params.yaml")) == {"distill": {"learning_rate": 3e-4}}
+    assert git("show", f"{commit}:other.txt") == "x\n" and git("rev-parse", f"{commit}^").strip() == head
+    assert git("rev-parse", "HEAD").strip() == head and git("status", "--porcelain") == ""  # workspace untouched
+    assert git("rev-parse", f"refs/mop-cluster/{commit}").strip() == commit  # kept from git gc
+
+
+def test_an_entry_with_threads_auto_asks_for_the_auto_share(tmp_path, tiny_params):
+    params = {**tiny_params, "distill": {**tiny_params["distill"], "threads": "auto"}}
+    file = tmp_path / "params.yaml"
+    file.write_text(yaml.safe_dump(params))
+    assert entry_resources(["distill@mse-medium"], file, auto_cpus=3)["distill@mse-medium"].cpus == 3
+    assert main(["repro", "--auto-threads", "0"]) == 2

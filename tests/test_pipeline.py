@@ -691,7 +691,8 @@ def test_the_study_through_mop_cluster_on_two_ray_nodes_equals_the_serial_run(re
     """`mop-cluster repro` on a local cluster of two Ray nodes (a head and a worker node started on this
     machine): every entry runs in its own clone sharing the DVC cache; the first attempt at relabel dies
     mid-entry (a killed worker) and Ray retries it; the workspace's own dvc repro then executes nothing, and
-    every output equals the serial run's (the module's fixture), timing records aside."""
+    every output equals the serial run's (the module's fixture), timing records aside. Then a sweep of two
+    values on the same cluster: two DVC experiments, and a value run again is restored, not rerun."""
     _run(["git", "checkout", "-q", "HEAD", "--", "."], repo)  # HEAD: dvc autostages dvc.lock
     _run(["dvc", "checkout", "-q"], repo)
     study = tmp_path / "study"
@@ -704,10 +705,23 @@ def test_the_study_through_mop_cluster_on_two_ray_nodes_equals_the_serial_run(re
         _run(f"{env} ray start --head --port {port} --num-cpus 2 --num-gpus 0 --include-dashboard false", study)
         _run(f"{env} ray start --address 127.0.0.1:{port} --num-cpus 2 --num-gpus 0", study)
         out = _run(f"{env} mop-cluster repro --address 127.0.0.1:{port}", study).stdout
+        assert "the workspace's dvc repro executed 0 stage(s)" in out, out
+        assert "relabel ran" in out and list((study / ".dvc" / "tmp" / "mop-cluster").glob("killed-relabel")), out
+        assert not _stages_run(_run(["dvc", "repro"], study).stdout)
+        assert json.loads(_run(["dvc", "status", "--json"], study).stdout) == {}
+        assert _without_timings(_outputs(study)) == _without_timings(_outputs(repo))
+
+        # a sweep on the cluster: one DVC experiment per value, each made by dvc exp run restoring everything
+        _run(["git", "add", "dvc.lock"], study)  # exp run, like repro, starts from a committed study
+        _run(["git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "lock"], study)
+        sweep = f"{env} mop-cluster exp run -S eval.bootstrap_reps=100,300 --address 127.0.0.1:{port}"
+        out = _run(sweep, study).stdout
+        assert out.count("dvc exp run executed 0 stage(s)") == 2 and "2 experiment(s) (8 entries ran" in out, out
+        shown = json.loads(_run(["dvc", "exp", "show", "--json"], study).stdout)
+        reps = {rev["data"]["params"]["params.yaml"]["data"]["eval"]["bootstrap_reps"]
+                for base in shown for experiment in base.get("experiments") or [] for rev in experiment["revs"]}
+        assert reps == {100, 300}
+        out = _run(sweep.replace("100,300", "100"), study).stdout  # a value run before: every entry restored
+        assert "1 experiment(s) (0 entries ran on workers, 4 restored)" in out, out
     finally:
         _run(["ray", "stop", "--force"], study, check=False)
-    assert "the workspace's dvc repro executed 0 stage(s)" in out, out
-    assert "relabel ran" in out and list((study / ".dvc" / "tmp" / "mop-cluster").glob("killed-relabel")), out
-    assert not _stages_run(_run(["dvc", "repro"], study).stdout)
-    assert json.loads(_run(["dvc", "status", "--json"], study).stdout) == {}
-    assert _without_timings(_outputs(study)) == _without_timings(_outputs(repo))
