@@ -43,24 +43,29 @@ def family(entry: str) -> str:
     return "distill" if name.startswith("distill") else name
 
 
-def _value(params: dict, key: str, source: Path) -> int:
+def _value(params: dict, key: str, source: Path, auto_cpus: int) -> int:
     node = params
     for part in key.split("."):
         if not isinstance(node, dict) or part not in node:
             raise KeyError(f"{source}: {key}: missing (mop_cluster.resources sizes entries by it)")
         node = node[part]
+    if node == "auto":  # the worker tells the entry its CPUs (MOP_THREADS), which auto then resolves to
+        return auto_cpus
     if not isinstance(node, int) or isinstance(node, bool) or node < 1:
         raise ValueError(f"{source}: {key}: expected a positive integer (threads or processes), got {node!r}")
     return node
 
 
-def entry_resources(entries: list[str], params_file: Path, gpus_per_run: float = 0.0) -> dict[str, EntryResources]:
-    """Each entry's CPUs and GPU share, read from ``params_file`` by the CPU_KEYS table."""
-    params = yaml.safe_load(params_file.read_text()) or {}
+def entry_resources(entries: list[str], params_file: Path, gpus_per_run: float = 0.0,
+                    params: dict | None = None, auto_cpus: int = 2) -> dict[str, EntryResources]:
+    """Each entry's CPUs and GPU share, read by the CPU_KEYS table from ``params`` (default: ``params_file``'s
+    content; the file names them in errors). A ``threads: auto`` key counts ``auto_cpus``."""
+    if params is None:
+        params = yaml.safe_load(params_file.read_text()) or {}
     sized = {}
     for entry in entries:
         how, keys = CPU_KEYS.get(family(entry), ("max", ()))
-        values = [_value(params, key, params_file) for key in keys] or [1]
+        values = [_value(params, key, params_file, auto_cpus) for key in keys] or [1]
         cpus = prod(values) if how == "product" else max(values)
         gpus = gpus_per_run if family(entry).startswith(GPU_FAMILIES) else 0.0
         sized[entry] = EntryResources(cpus=cpus, gpus=gpus)

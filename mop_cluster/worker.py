@@ -57,8 +57,9 @@ def _maybe_die(entry: str, scratch: Path, proc: subprocess.Popen) -> None:
     os._exit(137)
 
 
-def run_entry(root: str, commit: str, entry: str, cache_dir: str, scratch: str) -> EntryResult:
-    """``dvc repro entry`` in a fresh clone of ``root`` at ``commit`` whose cache is ``cache_dir``."""
+def run_entry(root: str, commit: str, entry: str, cache_dir: str, scratch: str, cpus: int = 1) -> EntryResult:
+    """``dvc repro entry`` in a fresh clone of ``root`` at ``commit`` whose cache is ``cache_dir``, told the
+    ``cpus`` Ray gave it (``MOP_THREADS``: what a ``threads: auto`` param resolves to there)."""
     start = time.perf_counter()
     Path(scratch).mkdir(parents=True, exist_ok=True)
     clone = Path(tempfile.mkdtemp(prefix=f"{entry.replace('@', '_')}-", dir=scratch))
@@ -66,7 +67,7 @@ def run_entry(root: str, commit: str, entry: str, cache_dir: str, scratch: str) 
         _git(["clone", "-q", "--shared", "--no-checkout", root, str(clone)], Path(scratch))
         _git(["checkout", "-q", commit], clone)
         subprocess.run(["dvc", "cache", "dir", "--local", cache_dir], cwd=clone, check=True, capture_output=True)
-        env = os.environ | {"MOP_PROGRESS": "0"}
+        env = os.environ | {"MOP_PROGRESS": "0", "MOP_THREADS": str(cpus)}
         dvc_start = time.perf_counter()
         proc = subprocess.Popen(["dvc", "repro", entry], cwd=clone, env=env, text=True,
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
@@ -81,7 +82,8 @@ def run_entry(root: str, commit: str, entry: str, cache_dir: str, scratch: str) 
         shutil.rmtree(clone, ignore_errors=True)
 
 
-def run_after(root: str, commit: str, entry: str, cache_dir: str, scratch: str, *upstream: EntryResult) -> EntryResult:
+def run_after(root: str, commit: str, entry: str, cache_dir: str, scratch: str, cpus: int,
+              *upstream: EntryResult) -> EntryResult:
     """The Ray task: ``upstream`` are the results of the entries ``entry`` reads from (Ray passes them
     once they exist, so an entry starts only after its inputs are in the run cache)."""
-    return run_entry(root, commit, entry, cache_dir, scratch)
+    return run_entry(root, commit, entry, cache_dir, scratch, cpus)

@@ -224,3 +224,18 @@ def test_dvc_repro_reruns_the_check_when_a_misspelt_section_appears(tmp_path):
     again = run("dvc", "repro", "params")
     assert again.returncode != 0
     assert "error: distil: unknown section in params.yaml" in again.stderr, again.stderr
+
+
+THREAD_KEYS = ("train_teachers.threads", "distill.threads", "shared_computation.threads", "state_shift.measure.threads")
+
+
+@pytest.mark.parametrize("key", THREAD_KEYS)
+def test_threads_auto_is_the_cores_this_process_may_use_and_a_bad_value_is_named(tiny_params, key, monkeypatch):
+    from mop_core.experiment.study import positive_threads
+
+    check_params(_set(tiny_params, (key, "auto")))  # accepted wherever a thread count is
+    monkeypatch.setenv("MOP_THREADS", "3")  # a mop-cluster worker's CPUs
+    assert positive_threads("auto", key) == 3
+    monkeypatch.delenv("MOP_THREADS")
+    assert positive_threads("auto", key) == len(os.sched_getaffinity(0))
+    _refused(_set(tiny_params, (key, "all")), f"{key}: expected a positive integer or 'auto'")

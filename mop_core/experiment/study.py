@@ -20,6 +20,7 @@ from typing import Any, Mapping
 from mop_core.config import ConfigError, from_mapping, require, require_unique
 from mop_core.experiment.variants import OFFLINE_DATA, SHIFT_CORRECTIONS
 from mop_core.learning.nn import ACTOR_TYPES
+from mop_core.learning.runtime import resolve_threads
 from mop_core.learning.schedule import TrainSchedule
 from mop_core.storage.layout import LEVELS
 from mop_core.walker.tasks import check_task_list, get_task, substitute_base
@@ -64,7 +65,7 @@ class TeacherGrid:
     actors: tuple[str, ...]  # PBRL actor types (deterministic; gaussian for the KL loss)
     seeds: tuple[int, ...]  # training seeds
     schedule: TrainSchedule
-    threads: int = 1  # torch threads (matrix stages run one after another)
+    threads: int | str = 1  # torch threads (matrix stages run one after another); auto: this process's cores
     pbrl: dict[str, Any] = field(default_factory=dict)  # PBRLConfig fields except actor (checked per actor)
 
     def __post_init__(self) -> None:
@@ -75,7 +76,7 @@ class TeacherGrid:
         require(len(self.seeds) > 0 and all(s >= 0 for s in self.seeds), "seeds", "a non-empty list of "
                 "non-negative integers", list(self.seeds))
         require_unique(self.seeds, "seeds")
-        require(self.threads >= 1, "threads", "a positive integer", self.threads)
+        object.__setattr__(self, "threads", resolve_threads(self.threads, "threads"))
         if "actor" in self.pbrl:
             raise ConfigError("pbrl.actor: set the actor types in train_teachers.actors instead")
 
@@ -271,8 +272,8 @@ def typed_section(params: Mapping[str, Any], name: str, config_type: type):
 
 
 def positive_threads(value: Any, key: str) -> int:
-    require(isinstance(value, int) and not isinstance(value, bool) and value >= 1, key, "a positive integer", value)
-    return value
+    """A threads param: a positive integer, or ``auto`` (the cores this process may use)."""
+    return resolve_threads(value, key)
 
 
 def study_config(params: Mapping[str, Any]) -> StudyConfig:

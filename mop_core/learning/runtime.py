@@ -16,6 +16,35 @@ from tqdm import tqdm
 
 from mop_core.config import ConfigError
 
+THREADS_ENV = "MOP_THREADS"  # what threads: auto means where it is set (a mop-cluster worker: its entry's CPUs)
+
+
+def available_cores() -> int:
+    """The cores this process may use: ``MOP_THREADS`` where set, else the CPU affinity's size (a container's
+    or ``taskset``'s limit, which ``os.cpu_count`` ignores)."""
+    value = os.environ.get(THREADS_ENV, "")
+    if value:
+        if not value.isdigit() or int(value) < 1:
+            raise ConfigError(f"{THREADS_ENV}: expected a positive integer (the cores threads: auto uses), "
+                              f"got {value!r}")
+        return int(value)
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # macOS, Windows
+        return os.cpu_count() or 1
+
+
+def resolve_threads(value: Any, key: str) -> int:
+    """A ``threads`` param: a positive integer, or ``auto`` (:func:`available_cores`). ``auto`` fits a run to
+    its machine, at a price: thread counts change float rounding, so two machines' runs of one params file
+    then differ in the last bits, which DVC's params hash does not see (an integer pins them)."""
+    if value == "auto":
+        return available_cores()
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ConfigError(f"{key}: expected a positive integer or 'auto' (the cores this process may use), "
+                          f"got {value!r}")
+    return value
+
 
 def resolve_device(name: str, key: str = "device") -> torch.device:
     """``auto`` picks CUDA when present, else the CPU; ``cpu``/``cuda``/``cuda:N`` are taken as given."""

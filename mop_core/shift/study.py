@@ -45,6 +45,7 @@ import numpy as np
 
 from mop_core.config import from_mapping, require
 from mop_core.data import read_dataset
+from mop_core.learning.runtime import resolve_threads
 from mop_core.shift.measures import (
     ClassifierConfig,
     crossfit_test,
@@ -68,7 +69,7 @@ class MeasureConfig:
     k: int = 5  # kNN estimator's neighbour
     bootstrap: int = 10  # random episode-halves of T: the kNN estimate's and its null's mean and range
     classifier_epochs: int = 10
-    threads: int = 2  # torch threads
+    threads: int | str = 2  # torch threads; auto: this process's cores
 
     def __post_init__(self) -> None:
         require(self.states >= 100, "states", "at least 100", self.states)
@@ -76,7 +77,7 @@ class MeasureConfig:
                 self.k)
         require(self.bootstrap >= 2, "bootstrap", "at least 2 episode-halves", self.bootstrap)
         require(self.classifier_epochs >= 1, "classifier_epochs", "a positive integer", self.classifier_epochs)
-        require(self.threads >= 1, "threads", "a positive integer", self.threads)
+        object.__setattr__(self, "threads", resolve_threads(self.threads, "threads"))
 
 
 ACTION_ERRORS = ("train", "heldout", "visited")  # where a student's action error to its teacher is measured
