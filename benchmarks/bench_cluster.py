@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from bad_inputs import copy_project  # noqa: E402
+from bad_inputs import committed_project  # noqa: E402
 
 from mop_cluster.dag import stage_graph  # noqa: E402
 from mop_cluster.makespan import estimated_seconds, measured_seconds, profile_graph, table  # noqa: E402
@@ -33,21 +33,14 @@ from mop_cluster.makespan import estimated_seconds, measured_seconds, profile_gr
 WORKERS = [1, 4, 16, 64]
 
 
-def _study(directory: Path) -> Path:
-    copy_project(ROOT, directory)
-    for args in (["init", "-q"], ["add", "-A"], ["-c", "user.name=b", "-c", "user.email=b@b", "commit", "-qm", "b"]):
-        subprocess.run(["git", *args], cwd=directory, check=True, capture_output=True)
-    return directory
-
-
 def measure(workers: int) -> None:
     env = os.environ | {"MOP_PROGRESS": "0", "RAY_USAGE_STATS_ENABLED": "0"}
     with tempfile.TemporaryDirectory() as scratch:
-        serial = _study(Path(scratch) / "serial")
+        serial = committed_project(ROOT, Path(scratch) / "serial")
         start = time.perf_counter()
         subprocess.run(["dvc", "repro"], cwd=serial, env=env, check=True, capture_output=True)
         serial_s = time.perf_counter() - start
-        cluster = _study(Path(scratch) / "cluster")
+        cluster = committed_project(ROOT, Path(scratch) / "cluster")
         start = time.perf_counter()
         out = subprocess.run(["mop-cluster", "repro", "--workers", str(workers)], cwd=cluster, env=env, check=True,
                              capture_output=True, text=True).stdout

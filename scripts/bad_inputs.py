@@ -296,13 +296,19 @@ def copy_project(source: Path, target: Path) -> None:
     shutil.copy(source / "profiles" / "tiny.yaml", target / "params.yaml")
 
 
-def build_workspace(source: Path, target: Path) -> None:
+def committed_project(source: Path, target: Path) -> Path:
+    """:func:`copy_project`, committed in a new git repository (what DVC experiments and mop-cluster need)."""
     copy_project(source, target)
-    for cmd in (["git", "init", "-q"], ["git", "add", "-A"],
-                ["git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "tiny"], ["dvc", "repro"]):
-        result = run(cmd, target, timeout=3600)
-        if result.returncode != 0:
-            raise SystemExit(f"{' '.join(cmd)} failed in {target}:\n{result.stdout}\n{result.stderr}")
+    for args in (["init", "-q"], ["add", "-A"], ["-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "tiny"]):
+        subprocess.run(["git", *args], cwd=target, check=True, capture_output=True)
+    return target
+
+
+def build_workspace(source: Path, target: Path) -> None:
+    committed_project(source, target)
+    result = run(["dvc", "repro"], target, timeout=3600)
+    if result.returncode != 0:
+        raise SystemExit(f"dvc repro failed in {target}:\n{result.stdout}\n{result.stderr}")
 
 
 def classify(result: subprocess.CompletedProcess | None, culprit: str) -> tuple[str, str]:

@@ -157,18 +157,17 @@ def _study(tmp_path: Path, **params_changes) -> Path:
     import sys
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-    from bad_inputs import copy_project
+    from bad_inputs import committed_project
 
-    study = tmp_path / "study"
-    copy_project(Path(__file__).resolve().parents[1], study)
+    study = committed_project(Path(__file__).resolve().parents[1], tmp_path / "study")
     if params_changes:
         params = yaml.safe_load((study / "params.yaml").read_text())
         for key, value in params_changes.items():
             section, name = key.split("__")
             params[section][name] = value
         (study / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
-    for args in (["init", "-q"], ["add", "-A"], ["-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "s"]):
-        subprocess.run(["git", *args], cwd=study, check=True, capture_output=True)
+        subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qam", "p"], cwd=study,
+                       check=True, capture_output=True)
     return study
 
 

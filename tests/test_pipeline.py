@@ -19,7 +19,7 @@ import yaml
 from conftest import ROOT, TEST_DEVICE
 
 sys.path.insert(0, str(ROOT / "scripts"))
-from bad_inputs import copy_project  # noqa: E402
+from bad_inputs import committed_project, copy_project  # noqa: E402
 
 pytestmark = pytest.mark.slow
 
@@ -695,10 +695,7 @@ def test_the_study_through_mop_cluster_on_two_ray_nodes_equals_the_serial_run(re
     values on the same cluster: two DVC experiments, and a value run again is restored, not rerun."""
     _run(["git", "checkout", "-q", "HEAD", "--", "."], repo)  # HEAD: dvc autostages dvc.lock
     _run(["dvc", "checkout", "-q"], repo)
-    study = tmp_path / "study"
-    copy_project(ROOT, study)
-    for args in (["init", "-q"], ["add", "-A"], ["-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "s"]):
-        _run(["git", *args], study)
+    study = committed_project(ROOT, tmp_path / "study")
     port = "6391"
     env = "MOP_CLUSTER_KILL_ONCE=relabel RAY_USAGE_STATS_ENABLED=0 RAY_AUTH_MODE=disabled"  # one machine: no token
     try:
