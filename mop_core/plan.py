@@ -78,6 +78,14 @@ class Rates:
         return t_low + (t_high - t_low) * (runs - low) / (high - low)
 
 
+def teacher_schedule(params: Mapping[str, Any], level: str) -> dict:
+    """train_teachers.schedule for a teacher of ``level`` (``steps`` may be one number per level)."""
+    schedule = dict(params["train_teachers"]["schedule"])
+    if isinstance(schedule["steps"], Mapping):
+        schedule["steps"] = schedule["steps"][level]
+    return schedule
+
+
 def _evaluation_steps(schedule: Mapping[str, Any], episode_length: int, policies: int = 1,
                       final_is_last_point: bool = False) -> int:
     """Control steps of a run's learning-curve and final evaluations (per policy and task).
@@ -139,12 +147,13 @@ def stage_hours(params: Mapping[str, Any], rates: Rates) -> dict[str, tuple[int,
     waves = math.ceil(len(tasks) / collect["parallel"]["workers"])
     out["collect"] = (len(tasks), waves * per_task / 3600)
 
-    t_sched = params["train_teachers"]["schedule"]
+    t_sched = lambda level: teacher_schedule(params, level)  # noqa: E731
     out["train_teachers"] = _hours(catalogue.teachers, lambda run: (
-        t_sched["steps"] / rates.pbrl[run.actor] + _evaluation_steps(t_sched, length) / rates.rollout))
+        t_sched(run.level)["steps"] / rates.pbrl[run.actor]
+        + _evaluation_steps(t_sched(run.level), length) / rates.rollout))
     out["train_multitask"] = _hours(catalogue.multitask, lambda run: (
-        len(run.tasks) * t_sched["steps"] / rates.pbrl["deterministic"]
-        + _evaluation_steps(t_sched, length, len(run.tasks)) / rates.rollout))
+        len(run.tasks) * t_sched(run.level)["steps"] / rates.pbrl["deterministic"]
+        + _evaluation_steps(t_sched(run.level), length, len(run.tasks)) / rates.rollout))
     students = {stage: (sum(map(len, entries.values())), sum(_entry_seconds(runs, params, len(tasks), rates)
                                                               for runs in entries.values()) / 3600)
                 for stage, entries in catalogue.distill_stages().items()}
@@ -152,7 +161,8 @@ def stage_hours(params: Mapping[str, Any], rates: Rates) -> dict[str, tuple[int,
     out |= place(STUDENT_STAGES[:4])
     # each a deterministic teacher's cost
     out["train_relabelled_teachers"] = _hours(catalogue.relabelled_teachers, lambda run: (
-        t_sched["steps"] / rates.pbrl["deterministic"] + _evaluation_steps(t_sched, length) / rates.rollout))
+        t_sched(run.level)["steps"] / rates.pbrl["deterministic"]
+        + _evaluation_steps(t_sched(run.level), length) / rates.rollout))
     out |= place(STUDENT_STAGES[4:6])
     out["compose"] = _compose_hours(params, rates)
     out |= place(STUDENT_STAGES[6:]) | students  # a family's stage not placed here: after the others
@@ -190,11 +200,15 @@ def scaled_profile(params: Mapping[str, Any], fraction: float, max_evaluations: 
         section = out
         for name in path:
             section = section[name]
-        section[key] = max(floor, round(section[key] * fraction))
+        if isinstance(section[key], Mapping):  # one value per level (train_teachers.schedule.steps)
+            section[key] = {name: max(floor, round(value * fraction)) for name, value in section[key].items()}
+        else:
+            section[key] = max(floor, round(section[key] * fraction))
     if max_evaluations is not None:
         for schedule, steps in ((out["collect"]["schedule"], "total_steps"),
                                 (out["train_teachers"]["schedule"], "steps"), (out["distill"]["schedule"], "steps")):
-            schedule["eval_every"] = max(schedule["eval_every"], -(-schedule[steps] // max_evaluations))
+            longest = max(schedule[steps].values()) if isinstance(schedule[steps], Mapping) else schedule[steps]
+            schedule["eval_every"] = max(schedule["eval_every"], -(-longest // max_evaluations))
     collect = out["collect"]["schedule"]
     collect["medium_step"] = min(collect["medium_step"], collect["total_steps"] // 2)
     collect["medium_target_return"] = collect["expert_return"] = None  # a scaled run stops at its step counts

@@ -108,7 +108,7 @@ def check_batch_sizes(params: Mapping[str, Any], study: StudyConfig, collect: Co
     """Batches no larger than the data the study will produce (a typo, not an experiment)."""
     sizes = {level: dataset_transitions(collect, level) for level in study.levels}
     for actor in teacher_grid(params).actors:
-        pbrl = teacher_config(params, study, actor).pbrl
+        pbrl = teacher_config(params, study, actor, study.levels[0]).pbrl  # one PBRL setting for every level
         for level, transitions in sizes.items():
             require(transitions is None or pbrl.batch_size <= transitions, "train_teachers.pbrl.batch_size",
                     f"at most the {transitions} transitions of each {level} dataset", pbrl.batch_size)
@@ -217,7 +217,8 @@ def check_params(params: Mapping[str, Any], where: str = "params.yaml") -> None:
             collect.schedule.medium_target(task)
     typed_section(params, "relabel", RelabelConfig)
     for actor in teacher_grid(params).actors:
-        teacher_config(params, study, actor)
+        for level in study.levels:  # a schedule for every study level (steps may be one per level)
+            teacher_config(params, study, actor, level)
     multitask_grid(params, study)
     for loss in distill_grid(params, study, LOSS_ACTORS).losses:
         distill_config(params, loss)

@@ -20,7 +20,7 @@ import torch
 from mop_core.agents.pbrl import PBRLConfig, make_actor
 from mop_core.agents.pbrl_group import PBRLGroup, stack_batches
 from mop_core.agents.pbrl_multitask import MultiTaskPBRL
-from mop_core.config import ConfigError, InputFileError, from_mapping, require, to_dict
+from mop_core.config import ConfigError, InputFileError, from_mapping, keys_under, require, to_dict
 from mop_core.data.buffer import TransitionTensors
 from mop_core.data.hdf5 import read_dataset, read_relabel
 from mop_core.experiment.catalogue import build_catalogue
@@ -57,12 +57,14 @@ class TeacherConfig:
     episode_length: int = 1000
 
 
-def teacher_config(params: Mapping[str, Any], study: StudyConfig, actor: str = "deterministic") -> TeacherConfig:
-    """How one teacher of the params' train_teachers section trains (and the multi-task baseline, with
-    the same settings, as the thesis does)."""
+def teacher_config(params: Mapping[str, Any], study: StudyConfig, actor: str, level: str) -> TeacherConfig:
+    """How one teacher of dataset ``level`` trains by the params' train_teachers section (and the multi-task
+    baseline, with the same settings, as the thesis does)."""
     grid = teacher_grid(params)
     pbrl = from_mapping(PBRLConfig, dict(grid.pbrl) | {"actor": actor}, "train_teachers.pbrl")
-    return TeacherConfig(pbrl=pbrl, schedule=grid.schedule, episode_length=study.episode_length)
+    with keys_under("train_teachers"):
+        schedule = grid.schedule_for(level)
+    return TeacherConfig(pbrl=pbrl, schedule=schedule, episode_length=study.episode_length)
 
 
 @dataclass(frozen=True)

@@ -42,7 +42,7 @@ def main() -> None:
     device = resolve_device(study.device, "study.device")
     for stage, files in {**first.upstream_files(), "student_inputs": (student_inputs_file(args.entry),)}.items():
         require_inputs(files, stage)
-    check_student_files(runs, study.seed, lambda actor: teacher_config(params, study, actor),
+    check_student_files(runs, study.seed, lambda actor, level: teacher_config(params, study, actor, level),
                         student_inputs_file(args.entry))
 
     configure_compute(grid.threads)

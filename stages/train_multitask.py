@@ -36,7 +36,7 @@ def main() -> None:
     if len(study.tasks) < 2:
         raise ConfigError(f"study.tasks: the multi-task baseline needs at least two tasks, got {list(study.tasks)}")
     run = MultitaskRun(args.level, args.seed, study.tasks)
-    config, threads = teacher_config(params, study), teacher_grid(params).threads
+    config, threads = teacher_config(params, study, "deterministic", args.level), teacher_grid(params).threads
     device = resolve_device(study.device, "study.device")
     sources = [DataSource(dataset_file(t, run.level), relabel_file(t, run.level), t, t, run.level) for t in run.tasks]
     require_inputs([p for s in sources for p in (s.dataset, s.relabel)], "relabel")

@@ -45,7 +45,7 @@ def main() -> None:
     for seed in args.seeds or [0]:  # the level, and each seed asked for
         check_level_and_seed(study, args.level, seed)
     runs = entry_runs(params, args.level, args.actor, args.sharing, args.tasks, args.seeds)
-    config = teacher_config(params, study, args.actor)
+    config = teacher_config(params, study, args.actor, args.level)
     device = resolve_device(study.device, "study.device")
     jobs = [TeacherJob.of(run) for run in runs]
     require_inputs([path for job in jobs for s in job.sources for path in (s.dataset, s.relabel)], "relabel")

@@ -239,3 +239,9 @@ def test_threads_auto_is_the_cores_this_process_may_use_and_a_bad_value_is_named
     monkeypatch.delenv("MOP_THREADS")
     assert positive_threads("auto", key) == len(os.sched_getaffinity(0))
     _refused(_set(tiny_params, (key, "all")), f"{key}: expected a positive integer or 'auto'")
+
+
+def test_teacher_steps_per_level_must_name_every_study_level(tiny_params):
+    _refused(_set(tiny_params, ("train_teachers.schedule.steps", {"expert": 40})),
+             "train_teachers.schedule.steps: expected a number of steps for level 'medium' (every study level)")
+    check_params(_set(tiny_params, ("train_teachers.schedule.steps", {"medium": 40, "expert": 80})))

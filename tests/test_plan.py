@@ -41,6 +41,20 @@ def test_teacher_hours_are_runs_times_updates_over_the_rate_plus_their_rollouts(
     assert doubled["train_teachers"][1] < hours["train_teachers"][1] / 2  # faster updates, free rollouts
 
 
+def test_teacher_steps_per_level_cost_each_level_its_own_steps():
+    steps = THESIS["train_teachers"]["schedule"]["steps"]
+    per_level = {level: steps for level in THESIS["study"]["levels"]} | {"expert": 2 * steps}
+    params = {**THESIS, "train_teachers": {**THESIS["train_teachers"],
+                                           "schedule": {**THESIS["train_teachers"]["schedule"], "steps": per_level}}}
+    levels = len(THESIS["study"]["levels"])
+    one, two = stage_hours(THESIS, RATES)["train_teachers"][1], stage_hours(params, RATES)["train_teachers"][1]
+    assert two > one and two < one * (levels + 1) / levels + 1e-9  # the expert third costs up to twice
+    short = scaled_profile(params, 0.001)
+    assert short["train_teachers"]["schedule"]["steps"]["expert"] == 2 * short["train_teachers"]["schedule"]["steps"][
+        "medium"]
+    check_params(short)
+
+
 @pytest.mark.parametrize("fraction", [0.001, 0.0001])
 def test_a_shortened_thesis_profile_passes_the_params_check_and_keeps_the_grid(fraction):
     short = scaled_profile(THESIS, fraction)

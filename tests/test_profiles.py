@@ -12,7 +12,8 @@ from conftest import ROOT, params_stage
 PROFILES = sorted((ROOT / "profiles").glob("*.yaml"))
 
 
-VALUES = {"collect.schedule.medium_target_return", "collect.schedule.expert_return"}  # mappings of tasks, not sections
+VALUES = {"collect.schedule.medium_target_return", "collect.schedule.expert_return",  # mappings of tasks,
+          "train_teachers.schedule.steps"}  # of levels (or a number): values, not sections
 
 
 def key_paths(mapping: dict, prefix: str = "") -> set[str]:

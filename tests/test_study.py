@@ -74,14 +74,17 @@ def test_the_tiny_profiles_grid(tiny_params):
                                 progress=False)
     teachers = teacher_grid(tiny_params)
     assert teachers.actors == ("deterministic", "gaussian") and teachers.seeds == (0,) and teachers.threads == 1
-    assert teachers.schedule == TrainSchedule(steps=40, eval_every=20, eval_episodes=2, final_eval_episodes=2,
-                                              checkpoint_every=20, rollout_envs=2)
+    assert teachers.schedule_for("medium") == TrainSchedule(steps=40, eval_every=20, eval_episodes=2,
+                                                            final_eval_episodes=2, checkpoint_every=20, rollout_envs=2)
     assert teachers.pbrl["batch_size"] == 32 and "actor" not in teachers.pbrl
     assert multitask_grid(tiny_params, study) == MultitaskGrid(levels=("medium",), seeds=(0,))
     assert distill_grid(tiny_params, study, LOSS_ACTORS) == DistillGrid(
         losses=("mse", "q", "kl"), pairings=("medium",), seeds=(0,), teacher_seed=0, threads=1,
         schedule=TrainSchedule(steps=20, eval_every=10, eval_episodes=1, final_eval_episodes=1, checkpoint_every=10,
                                rollout_envs=1))
+
+
+THREADS_EXPECTED = "expected a positive integer or 'auto' (the cores this process may use)"
 
 
 @pytest.mark.parametrize("key,value,message", [
@@ -109,7 +112,8 @@ def test_study_config_checks(tiny_params, key, value, message):
     ("train_teachers.seeds", [], "train_teachers.seeds: expected a non-empty list of non-negative integers"),
     ("train_teachers.seeds", [0, -2], "train_teachers.seeds: expected a non-empty list of non-negative integers"),
     ("train_teachers.seeds", [3, 3], "train_teachers.seeds: expected a list without repeats, got [3, 3] (3 twice)"),
-    ("train_teachers.threads", 0, "train_teachers.threads: expected a positive integer, got 0"),
+    ("train_teachers.threads", 0, "train_teachers.threads: expected a positive integer or 'auto' (the cores "
+                                    "this process may use), got 0"),
     ("train_teachers.pbrl", {"actor": "gaussian"}, "train_teachers.pbrl.actor: set the actor types in "
                                                    "train_teachers.actors instead"),
     ("train_teachers.schedule", {"steps": 0}, "train_teachers.schedule.steps: expected a positive integer, got 0"),
@@ -118,6 +122,23 @@ def test_study_config_checks(tiny_params, key, value, message):
 def test_teacher_grid_checks(tiny_params, key, value, message):
     with _raises(message):
         teacher_grid(_set(tiny_params, key, value))
+
+
+def test_teacher_steps_may_be_one_per_level_and_every_study_level_needs_one(tiny_params):
+    """Expert data needs longer than medium at this budget (docs/teachers.md): steps per dataset level."""
+    schedule = dict(tiny_params["train_teachers"]["schedule"], steps={"expert": 80, "medium": 40})
+    grid = teacher_grid(_set(tiny_params, "train_teachers.schedule", schedule))
+    assert grid.schedule_for("expert").steps == 80 and grid.schedule_for("medium").steps == 40
+    for steps, message in (({"expert": 0}, "train_teachers.schedule.steps.expert: expected a positive integer"),
+                           ({"hard": 5}, "train_teachers.schedule.steps.hard: expected one of expert, medium"),
+                           ({}, "train_teachers.schedule.steps: expected a number of steps, or one per dataset level")):
+        with _raises(message):
+            teacher_grid(_set(tiny_params, "train_teachers.schedule", dict(schedule, steps=steps)))
+    from mop_core.teachers import teacher_config
+
+    params = _set(tiny_params, "train_teachers.schedule", dict(schedule, steps={"expert": 80}))
+    with _raises("train_teachers.schedule.steps: expected a number of steps for level 'medium' (every study level)"):
+        teacher_config(params, study_config(params), "deterministic", "medium")
 
 
 @pytest.mark.parametrize("key,value,message", [
@@ -151,8 +172,8 @@ def test_no_multitask_baseline_is_an_empty_grid(tiny_params):
     ("distill.seeds", [True], "distill.seeds: expected non-negative integers, got [True]"),
     ("distill.seeds", [1, 1], "distill.seeds: expected a list without repeats"),
     ("distill.teacher_seed", 1, "distill.teacher_seed: expected one of train_teachers.seeds [0], got 1"),
-    ("distill.threads", 0, "distill.threads: expected a positive integer, got 0"),
-    ("distill.threads", 1.0, "distill.threads: expected a positive integer, got 1.0"),
+    ("distill.threads", 0, f"distill.threads: {THREADS_EXPECTED}, got 0"),
+    ("distill.threads", 1.0, f"distill.threads: {THREADS_EXPECTED}, got 1.0"),
     ("distill.schedule", {"steps": 5, "eval_evry": 1}, "distill.schedule.eval_evry: unknown parameter"),
 ])
 def test_distill_grid_checks(tiny_params, key, value, message):

@@ -324,14 +324,15 @@ def distill_students(sources: StudentSources, config: DistillConfig, schedule: T
     return records
 
 
-def check_student_files(runs: list[StudentRun], study_seed: int, teacher_config: Callable[[str], TeacherConfig],
-                        record: Path) -> None:
+def check_student_files(runs: list[StudentRun], study_seed: int,
+                        teacher_config: Callable[[str, str], TeacherConfig], record: Path) -> None:
     """Before any compute: each teacher was trained as the study now says (task, level, seed, PBRL
-    settings, dataset content; ``teacher_config(actor)`` gives the expected settings), and the files
+    settings, dataset content; ``teacher_config(actor, level)`` gives the expected settings), and the files
     are the ones the student_inputs stage recorded (``record``, the DVC dependency of these students)."""
     for t in runs[0].all_teachers:
-        check_teacher_checkpoint(t.paths.checkpoint, t.task, t.level, t.seed, study_seed, teacher_config(t.actor),
-                                 "+".join(str(read_dataset_attrs(d)["content_sha256"]) for d in t.datasets))
+        sources = "+".join(str(read_dataset_attrs(d)["content_sha256"]) for d in t.datasets)
+        check_teacher_checkpoint(t.paths.checkpoint, t.task, t.level, t.seed, study_seed,
+                                 teacher_config(t.actor, t.level), sources)
     check_student_inputs(runs, read_json(record), record)
 
 

@@ -64,7 +64,7 @@ class TeacherGrid:
 
     actors: tuple[str, ...]  # PBRL actor types (deterministic; gaussian for the KL loss)
     seeds: tuple[int, ...]  # training seeds
-    schedule: TrainSchedule
+    schedule: dict[str, Any]  # TrainSchedule fields; steps: one number, or one per dataset level (schedule_for)
     threads: int | str = 1  # torch threads (matrix stages run one after another); auto: this process's cores
     pbrl: dict[str, Any] = field(default_factory=dict)  # PBRLConfig fields except actor (checked per actor)
 
@@ -79,6 +79,31 @@ class TeacherGrid:
         object.__setattr__(self, "threads", resolve_threads(self.threads, "threads"))
         if "actor" in self.pbrl:
             raise ConfigError("pbrl.actor: set the actor types in train_teachers.actors instead")
+        steps = self.schedule.get("steps")
+        if isinstance(steps, Mapping):
+            require(len(steps) > 0, "schedule.steps", "a number of steps, or one per dataset level", dict(steps))
+            for level in steps:
+                require(level in LEVELS, f"schedule.steps.{level}", f"one of {', '.join(LEVELS)}", level)
+                self.schedule_for(level)
+        else:
+            self.schedule_for(None)
+
+    def schedule_for(self, level: str | None) -> TrainSchedule:
+        """How a teacher of dataset ``level`` trains: ``schedule`` with its level's steps where ``steps`` is a
+        mapping of levels (expert data needs longer than medium at this budget: docs/teachers.md)."""
+        raw = dict(self.schedule)
+        per_level = isinstance(raw.get("steps"), Mapping)
+        if per_level:
+            if level not in raw["steps"]:
+                raise ConfigError(f"schedule.steps: expected a number of steps for level {level!r} (every study "
+                                  f"level), got {dict(raw['steps'])}")
+            raw["steps"] = raw["steps"][level]
+        try:
+            return from_mapping(TrainSchedule, raw, "schedule")
+        except ConfigError as err:
+            if per_level and str(err).startswith("schedule.steps:"):
+                raise ConfigError(str(err).replace("schedule.steps:", f"schedule.steps.{level}:", 1)) from None
+            raise
 
 
 @dataclass(frozen=True)
