@@ -15,7 +15,6 @@ from .worker import RAN, EntryResult, run_after
 
 LOCK = Path(".dvc/tmp/mop-cluster.pid")
 SCRATCH = Path(".dvc/tmp/mop-cluster")  # the workers' clones
-CANCEL_WAIT = 20.0  # seconds the cancelled tasks get to stop their stages before Ray shuts down
 
 
 class ClusterError(RuntimeError):
@@ -135,10 +134,9 @@ def run_on_ray(ray, root: Path, jobs: list[Job], sized: dict, address: str | Non
         names = {ref: name for name, ref in refs.items()}
         try:
             return _collect(ray, waiting, names, len(jobs), log)
-        except BaseException:  # a failed entry or Ctrl-C: stop every worker, and let each kill its stage
+        except BaseException:  # a failed entry or Ctrl-C: stop every worker
             for ref in refs.values():
-                ray.cancel(ref)  # not force: the task sees a KeyboardInterrupt and kills its process group
-            ray.wait(list(refs.values()), num_returns=len(refs), timeout=CANCEL_WAIT)
+                ray.cancel(ref, force=True)
             raise
     finally:
         ray.shutdown()
@@ -151,9 +149,8 @@ def _collect(ray, waiting, names, total: int, log) -> list[EntryResult]:
         try:
             result = ray.get(ready[0])
         except Exception as exc:  # the entry's EntryFailed, or a worker lost beyond its retries
-            cause = str(getattr(exc, "cause", None) or exc)
-            name = names[ready[0]]
-            raise ClusterError(cause if cause.startswith(f"{name}: ") else f"{name}: {cause}") from None
+            cause = getattr(exc, "cause", None) or exc
+            raise ClusterError(f"{names[ready[0]]}: {cause}") from None
         results.append(result)
         log(f"mop-cluster: {names[ready[0]]} {'ran' if result.ran else 'restored'} in {result.seconds:.1f} s "
             f"on {result.node} ({len(results)}/{total})")

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import signal
 import socket
 import subprocess
 import tempfile
@@ -70,21 +69,10 @@ def run_entry(root: str, commit: str, entry: str, cache_dir: str, scratch: str, 
         subprocess.run(["dvc", "cache", "dir", "--local", cache_dir], cwd=clone, check=True, capture_output=True)
         env = os.environ | {"MOP_PROGRESS": "0", "MOP_THREADS": str(cpus)}
         dvc_start = time.perf_counter()
-        log_file = clone.parent / f"{clone.name}.log"
-        with open(log_file, "w") as out:  # its own process group: a cancelled task takes the stage with it
-            proc = subprocess.Popen(["dvc", "repro", entry], cwd=clone, env=env, text=True, stdout=out,
-                                    stderr=subprocess.STDOUT, start_new_session=True)
-        try:
-            _maybe_die(entry, Path(scratch), proc)
-            while proc.poll() is None:  # short waits: Ray's cancel (KeyboardInterrupt) lands between them
-                time.sleep(0.2)
-        except BaseException:
-            os.killpg(proc.pid, signal.SIGKILL)  # dvc and the stage's command
-            proc.wait()
-            raise
-        finally:
-            log = log_file.read_text(errors="replace") if log_file.exists() else ""
-            log_file.unlink(missing_ok=True)
+        proc = subprocess.Popen(["dvc", "repro", entry], cwd=clone, env=env, text=True,
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        _maybe_die(entry, Path(scratch), proc)
+        log, _ = proc.communicate()
         dvc_seconds = time.perf_counter() - dvc_start
         if proc.returncode != 0:
             raise _failed(entry, log)
