@@ -11,7 +11,7 @@ from pathlib import Path
 
 from .dag import stage_graph, stale_entries
 from .resources import entry_resources
-from .worker import RAN, EntryResult, run_after
+from .worker import EntryResult, run_after, stages_ran
 
 LOCK = Path(".dvc/tmp/mop-cluster.pid")
 SCRATCH = Path(".dvc/tmp/mop-cluster")  # the workers' clones
@@ -91,7 +91,7 @@ def repro(root: Path, address: str | None = None, workers: int | None = None, gp
         final = subprocess.run(["dvc", "repro"], cwd=root, capture_output=True, text=True)
         if final.returncode != 0:
             raise ClusterError(f"dvc repro in {root} failed:\n{final.stdout[-2000:]}{final.stderr[-2000:]}")
-        run.final_ran = [line.split("'")[1] for line in final.stdout.splitlines() if line.startswith(RAN)]
+        run.final_ran = stages_ran(final.stdout)
         run.seconds = time.perf_counter() - start
         return run
 

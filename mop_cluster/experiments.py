@@ -24,7 +24,7 @@ from pathlib import Path
 import yaml
 
 from .dag import StageGraph, stage_graph, stale_entries
-from .worker import RAN
+from .worker import stages_ran
 
 
 @dataclass(frozen=True)
@@ -157,7 +157,7 @@ def record_experiment(root: Path, experiment: Experiment) -> Recorded:
     if result.returncode != 0:
         raise RuntimeError(f"{' '.join(args)} failed:\n{result.stdout[-2000:]}{result.stderr[-2000:]}")
     out = result.stdout + result.stderr
-    ran = tuple(line.split("'")[1] for line in out.splitlines() if line.startswith(RAN))
+    ran = tuple(stages_ran(out))
     name = next((line.split(": ", 1)[1].strip() for line in out.splitlines()
                  if line.startswith("Ran experiment(s): ")), "")
     return Recorded(experiment, name, ran)

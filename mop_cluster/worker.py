@@ -31,6 +31,11 @@ class EntryResult:
     node: str
 
 
+def stages_ran(log: str) -> list[str]:
+    """The stages a ``dvc repro`` / ``dvc exp run`` log says it executed (not those it restored)."""
+    return [line.split("'")[1] for line in log.splitlines() if line.startswith(RAN)]
+
+
 class EntryFailed(RuntimeError):
     """An entry's command failed: its name and the last lines of its log (one message: picklable)."""
 
