@@ -9,7 +9,7 @@ from typing import Any, Mapping
 from mop_core.experiment.catalogue import Catalogue
 from mop_core.report.results import Run, StudyResults
 from mop_core.storage.artifacts import read_curve
-from mop_core.storage.files import read_json
+from mop_core.storage.files import read_record
 from mop_core.storage.layout import (
     COLLECT_METRICS,
     EVAL_METRICS,
@@ -22,8 +22,9 @@ from mop_core.storage.layout import (
 
 
 def read_optional(path: Path) -> dict | None:
-    """A result file's content, or None where that part of the study was not run."""
-    return read_json(path) if path.is_file() else None
+    """A result record's content (a mapping with the keys its writer always writes:
+    mop_core.storage.files.read_record), or None where that part of the study was not run."""
+    return read_record(path) if path.is_file() else None
 
 
 def load_run(run, key: dict) -> Run | None:

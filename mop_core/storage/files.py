@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from mop_core.config import InputFileError, OutputFileError, first_line
+from mop_core.storage.layout import RECORD_KEYS
 
 
 @contextlib.contextmanager
@@ -54,3 +55,18 @@ def read_json(path: str | os.PathLike) -> Any:
         return json.loads(path.read_text())
     except (ValueError, UnicodeDecodeError) as err:
         raise InputFileError(f"{path}: not valid JSON (empty, truncated or edited?): {first_line(err)}") from None
+
+
+def read_record(path: str | os.PathLike) -> dict:
+    """A result record a later stage reads (:func:`read_json`), refused by name unless it is a JSON object
+    with the keys its writer always writes (mop_core.storage.layout.RECORD_KEYS): an emptied ``{}`` or a
+    list is not a record."""
+    record = read_json(path)
+    if not isinstance(record, dict):
+        raise InputFileError(f"{path}: expected a JSON object (the stage's record), found a {type(record).__name__}; "
+                             "rerun the stage that writes it")
+    missing = [key for key in RECORD_KEYS.get(Path(path), ()) if key not in record]
+    if missing:
+        raise InputFileError(f"{path}: record without {', '.join(repr(k) for k in missing)} (emptied or edited?); "
+                             "rerun the stage that writes it")
+    return record

@@ -36,6 +36,12 @@ COMPOSE_METRICS = RESULTS / "compose" / "metrics.json"  # each composed dataset'
 EVAL_METRICS = RESULTS / "eval" / "metrics.json"  # every policy group's returns, raw and normalised
 SHARED_METRICS = RESULTS / "shared_computation" / "metrics.json"  # Table 6.1 per student group
 SHIFT_METRICS = RESULTS / "state_shift" / "metrics.json"  # each dataset's shift, the state_shift students
+#: The keys each of these records always holds (mop_core.storage.files.read_record refuses an emptied or foreign one).
+RECORD_KEYS: dict[Path, tuple[str, ...]] = {
+    SHIFT_METRICS: ("pairing", "measure", "shift", "students"),
+    EVAL_METRICS: ("aggregate", "cross_task", "eval", "normalisation"),
+    SHARED_METRICS: ("episodes_per_task", "groups", "students"),
+}
 VERDICTS = RESULTS / "verdicts.json"  # every finding's verdict and effects
 HEADLINE_METRICS = RESULTS / "metrics.json"  # the headline numbers and the verdict counts
 
