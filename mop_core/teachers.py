@@ -363,9 +363,10 @@ def teacher_from_checkpoint(payload: dict) -> Teacher:
 
 
 def check_teacher_checkpoint(path: str | Path, task: str, level: str, seed: int, study_seed: int,
-                             config: TeacherConfig, dataset_sha256: str) -> None:
+                             config: TeacherConfig, dataset_sha256: str | None) -> None:
     """Refuse a teacher checkpoint that was not trained as the study now says: another task, level,
-    seed, study seed, PBRL setting, number of steps, episode length or dataset content. Raises
+    seed, study seed, PBRL setting, number of steps, episode length or dataset content (``dataset_sha256``
+    None: a reader without the datasets among its inputs, which checks everything else). Raises
     InputFileError naming the file and the first difference (a stale or copied checkpoint would
     otherwise be distilled without a word)."""
     payload = load_checkpoint(path, TEACHER_KIND)
@@ -377,8 +378,9 @@ def check_teacher_checkpoint(path: str | Path, task: str, level: str, seed: int,
     found |= {f"pbrl.{key}": stored_config.get(key) for key in to_dict(config.pbrl)}
     expected["schedule.steps"] = config.schedule.steps
     found["schedule.steps"] = payload.get("metrics", {}).get("gradient_steps")
-    expected["dataset content_sha256"] = dataset_sha256
-    found["dataset content_sha256"] = payload.get("dataset", {}).get("content_sha256")
+    if dataset_sha256 is not None:
+        expected["dataset content_sha256"] = dataset_sha256
+        found["dataset content_sha256"] = payload.get("dataset", {}).get("content_sha256")
     for key, value in expected.items():
         if found[key] != value:
             raise InputFileError(f"{path}: teacher trained with {key}={found[key]!r}, the study expects {value!r}; "

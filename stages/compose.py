@@ -2,17 +2,14 @@
 
     python stages/compose.py
 
-For each study task, the deterministic teacher of the ``state_shift.pairing`` level (seed
-``distill.teacher_seed``) is rolled out in three pools of whole episodes (itself, itself with
-N(0, noise_std) action noise, uniformly random actions) and every ``state_shift.datasets`` entry is
-written as a dataset of ``state_shift.episodes`` episodes mixed by its composition
-(mop_core.shift.compose), plus ``reference_episodes`` held-out teacher episodes: the teacher's state
-distribution the state_shift stage measures every dataset against. Tasks run in parallel,
-``state_shift.workers`` single-threaded processes.
+For each study task, the deterministic teacher of the ``state_shift.pairing`` level (seed ``distill.teacher_seed``,
+checked to be the one the study trains) is rolled out in three pools of whole episodes (itself, with N(0, noise_std)
+action noise, uniformly random actions); every ``state_shift.datasets`` entry is written as ``state_shift.episodes``
+episodes mixed by its composition (mop_core.shift.compose), plus ``reference_episodes`` held-out teacher episodes:
+the state distribution the state_shift stage measures every dataset against. Tasks run in parallel.
 
-Outputs: data/composed/<task>-<level>-<dataset>.hdf5 and <task>-<level>-reference.hdf5 (the dataset
-schema of mop_core.data), results/compose/metrics.json (each dataset's composition and returns) and
-results/timings/compose.json.
+Outputs: data/composed/<task>-<level>-<dataset>.hdf5 and <task>-<level>-reference.hdf5 (mop_core.data's schema),
+results/compose/metrics.json (each dataset's composition and returns) and results/timings/compose.json.
 """
 
 from __future__ import annotations
@@ -25,6 +22,7 @@ from mop_core.data import write_json
 from mop_core.experiment.catalogue import build_catalogue
 from mop_core.experiment.study import shift_grid, study_config
 from mop_core.learning.runtime import parallel_map, progress_enabled
+from mop_core.provenance import check_teachers
 from mop_core.shift.compose import (
     compose_config,
     compose_jobs,
@@ -35,6 +33,7 @@ from mop_core.shift.compose import (
 )
 from mop_core.storage.layout import COMPOSE_METRICS, composed_file, timing_file
 from mop_core.storage.timings import write_timing
+from mop_core.teachers import teacher_config
 
 
 def main() -> None:
@@ -45,6 +44,7 @@ def main() -> None:
     started = time.perf_counter()
     teachers = build_catalogue(params).composing_teachers
     require_inputs([t.paths.checkpoint for t in teachers], "train_teachers")
+    check_teachers(teachers, study.seed, lambda actor, level: teacher_config(params, study, actor, level), data=False)
     jobs = compose_jobs(teachers, config, study.seed, study.episode_length)
     summaries = parallel_map(compose_teacher_data, jobs, grid.workers, "compose", progress_enabled(study.progress))
     metrics, seconds = compose_metrics(teachers, summaries), compose_seconds(teachers, summaries)

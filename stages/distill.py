@@ -15,12 +15,12 @@ from common import load_params, require_inputs, run_stage
 from mop_core.config import keys_under, require
 from mop_core.data import read_json
 from mop_core.distill.config import distill_config
-from mop_core.distill.run import StudentSources, check_student_files, distill_students, finish_students
+from mop_core.distill.run import StudentSources, distill_students, finish_students
 from mop_core.experiment.catalogue import LOSS_ACTORS, build_catalogue
 from mop_core.experiment.study import distill_grid, study_config
 from mop_core.learning.runtime import configure_compute, progress_enabled, resolve_device
+from mop_core.provenance import check_student_sources
 from mop_core.storage.layout import student_inputs_file
-from mop_core.teachers import teacher_config
 
 
 def main() -> None:
@@ -28,10 +28,9 @@ def main() -> None:
     parser.add_argument("--entry", required=True, help="a distill entry of the catalogue, e.g. mse-w16-medium")
     parser.add_argument("--seeds", type=int, nargs="+", default=None, help="a subset of distill.seeds")
     args = parser.parse_args()
-
     params = load_params()
-    study = study_config(params)
-    grid, entries = distill_grid(params, study, LOSS_ACTORS), build_catalogue(params).student_entries()
+    study, catalogue = study_config(params), build_catalogue(params)
+    grid, entries = distill_grid(params, study, LOSS_ACTORS), catalogue.student_entries()
     require(args.entry in entries, "--entry", f"a distill entry of this study, one of {sorted(entries)}", args.entry)
     runs, seeds = entries[args.entry], list(grid.seeds) if args.seeds is None else args.seeds
     require(len(set(seeds)) == len(seeds) and set(seeds) <= set(grid.seeds), "--seeds",
@@ -42,8 +41,7 @@ def main() -> None:
     device = resolve_device(study.device, "study.device")
     for stage, files in {**first.upstream_files(), "student_inputs": (student_inputs_file(args.entry),)}.items():
         require_inputs(files, stage)
-    check_student_files(runs, study.seed, lambda actor, level: teacher_config(params, study, actor, level),
-                        student_inputs_file(args.entry))
+    check_student_sources(params, catalogue, runs, student_inputs_file(args.entry))  # before any compute
 
     configure_compute(grid.threads)
     with keys_under("distill"):  # sizes checked against the states: distill.batch_size

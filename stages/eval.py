@@ -31,6 +31,7 @@ from mop_core.eval_study import (
 from mop_core.experiment.catalogue import build_catalogue
 from mop_core.experiment.study import EvalConfig, study_config, typed_section
 from mop_core.learning.runtime import progress_enabled
+from mop_core.provenance import check_policies
 from mop_core.storage.layout import COLLECT_METRICS, EVAL_METRICS, timing_file
 from mop_core.walker.tasks import substitute_base
 
@@ -42,6 +43,7 @@ def main() -> None:
     jobs = catalogue.eval_jobs()
     require_inputs(sorted({job.checkpoint for job in jobs}), "distill")
     require_inputs([COLLECT_METRICS], "collect")
+    check_policies(params, catalogue)  # every checkpoint is the run the catalogue names (widths, seeds, settings)
     norms = normalisers(study.tasks, COLLECT_METRICS)
     substitutes = {task: substitute_base(task) for task in catalogue.eval_tasks if task not in study.tasks}
     norms |= substitute_normalisers(substitutes, norms, study.seed, study.episode_length, config.rollout_envs)

@@ -24,6 +24,7 @@ from mop_core.data import write_json
 from mop_core.experiment.catalogue import build_catalogue
 from mop_core.experiment.study import study_config
 from mop_core.learning.runtime import progress_enabled
+from mop_core.provenance import check_policies
 from mop_core.shared_computation import shared_computation_config
 from mop_core.shared_study import measure_catalogue, print_summary, tau_during_training_figure
 from mop_core.storage.layout import SHARED_METRICS, stage_dir, timing_file
@@ -38,6 +39,7 @@ def main() -> None:
     catalogue = build_catalogue(params)
     require_inputs([f for run in catalogue.students for f in (run.paths.checkpoint, run.paths.curve,
                                                               run.paths.metrics)], "distill")
+    check_policies(params, catalogue, students_only=True)
     metrics, seconds = measure_catalogue(catalogue, config, threads, study.episode_length, out,
                                          progress_enabled(study.progress))
     write_json(SHARED_METRICS, metrics)

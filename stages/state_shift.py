@@ -1,15 +1,12 @@
 """state_shift stage: the state distribution shift of every dataset, measured, next to the students (thesis 5.2).
+``python stages/state_shift.py``.
+Per study task, the shift between the teacher's held-out visited states (the compose stage's reference episodes)
+and each dataset, the collect levels and the composed ones (mop_core.shift.study; each file checked to be what the
+catalogue names first); then the state_shift students' returns from the eval stage, their action errors and each
+correction's gain, next to plain MOP and the common_structure widths (the rows: mop_core.shift.results).
 
-    python stages/state_shift.py
-
-Per study task, the shift between the teacher's held-out visited states (the compose stage's reference
-episodes) and each dataset, the collect levels and the composed ones (mop_core.shift.study); then the
-state_shift students' returns from the eval stage, their action errors and each correction's gain, next
-to the offline references: plain MOP and the common_structure widths (the rows: mop_core.shift.results).
-
-Outputs: results/state_shift/metrics.json, figures/capacity.png (return against width per dataset) and
-figures/shift_returns.png (student/teacher return against the measured shift) under it, and
-results/timings/state_shift.json.
+Outputs: results/state_shift/metrics.json, its figures/ (capacity.png: return against width per dataset;
+shift_returns.png: student/teacher return against the shift), results/timings/state_shift.json.
 """
 
 from __future__ import annotations
@@ -18,11 +15,13 @@ import time
 
 from common import load_params, require_inputs, run_stage
 
-from mop_core.data import read_json, write_json
+from mop_core.data import write_json
 from mop_core.eval_study import normalisers
 from mop_core.experiment.catalogue import build_catalogue
 from mop_core.learning.runtime import configure_compute
+from mop_core.provenance import Provenance
 from mop_core.shift.results import clear_figures, shift_stage, write_figures
+from mop_core.storage.files import read_record
 from mop_core.storage.layout import COLLECT_METRICS, EVAL_METRICS, SHIFT_METRICS, timing_file
 from mop_core.storage.timings import write_timing
 
@@ -31,7 +30,7 @@ FIGURES = SHIFT_METRICS.parent / "figures"  # a folder output: the figures of a 
 
 def main() -> None:
     params = load_params()
-    stage = shift_stage(params, build_catalogue(params))
+    stage = shift_stage(params, catalogue := build_catalogue(params))
     started = time.perf_counter()
     configure_compute(stage.measure.threads)
     clear_figures(FIGURES)
@@ -39,11 +38,14 @@ def main() -> None:
     if stage.active:
         for writer, paths in stage.inputs(EVAL_METRICS).items():
             require_inputs(paths, writer)
+        Provenance.of_params(params, catalogue).check_datasets(
+            path for task in stage.measured_tasks for path in stage.dataset_files(task).values())
+        evaluation = read_record(EVAL_METRICS)
         for task in stage.measured_tasks:
             shift = stage.add_shift(metrics, task)
             print(f"state_shift {task}: " + ", ".join(f"{name} KL {m['kl']:.2f} AUC {m['auc']:.3f}"
                                                      for name, m in shift.items() if "kl" in m))
-        stage.add_students(metrics, read_json(EVAL_METRICS), normalisers(stage.tasks, COLLECT_METRICS))
+        stage.add_students(metrics, evaluation, normalisers(stage.tasks, COLLECT_METRICS))
         write_figures(metrics, stage.tasks, FIGURES)
     write_json(SHIFT_METRICS, metrics)
     write_timing(timing_file("state_shift"), time.perf_counter() - started, "cpu",

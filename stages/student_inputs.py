@@ -15,16 +15,24 @@ from common import load_params, require_inputs, run_stage
 
 from mop_core.data import write_json
 from mop_core.experiment.catalogue import build_catalogue, student_inputs
+from mop_core.experiment.study import study_config
+from mop_core.provenance import Provenance, check_teachers
 from mop_core.storage.layout import student_inputs_file
+from mop_core.teachers import teacher_config
 
 
 def main() -> None:
-    catalogue = build_catalogue(load_params())
+    params = load_params()
+    study, catalogue = study_config(params), build_catalogue(params)
     students = catalogue.students + catalogue.shift_students
     require_inputs(sorted({t.paths.checkpoint for run in students for t in run.teachers}), "train_teachers")
     files = {d for run in students for d in run.input_datasets}
     require_inputs(sorted(d for d in files if d.parent.name != "composed"), "collect")
     require_inputs(sorted(d for d in files if d.parent.name == "composed"), "compose")
+    # record only files that are what the catalogue says (a swapped file is refused, not laundered)
+    check_teachers([t for run in students for t in run.all_teachers], study.seed,
+                   lambda actor, level: teacher_config(params, study, actor, level))
+    Provenance.of_params(params, catalogue).check_datasets(sorted(files))
     entries = catalogue.student_entries()
     for entry, runs in entries.items():
         write_json(student_inputs_file(entry), student_inputs(runs))

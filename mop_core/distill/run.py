@@ -11,13 +11,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 import torch
 
 from mop_core.config import require, to_dict
-from mop_core.data.hdf5 import read_dataset_attrs
 from mop_core.distill.checkpoint import STUDENT_KIND
 from mop_core.distill.config import DistillConfig
 from mop_core.distill.corrections import density_weights
@@ -33,7 +32,6 @@ from mop_core.distill.states import (
     q_switch_states,
     task_states,
 )
-from mop_core.experiment.catalogue import check_student_inputs
 from mop_core.experiment.runs import StudentRun
 from mop_core.experiment.variants import Q_SWITCH_JUDGES
 from mop_core.learning.resume import run_fingerprint
@@ -42,9 +40,8 @@ from mop_core.learning.schedule import TrainSchedule
 from mop_core.learning.step_metrics import run_key, split_runs
 from mop_core.learning.training import RunPaths, finish_run, train_loop
 from mop_core.storage.artifacts import read_curve, state_sha256, write_curve
-from mop_core.storage.files import read_json
 from mop_core.storage.timings import per_second, write_timing
-from mop_core.teachers import Teacher, TeacherConfig, check_teacher_checkpoint, load_teacher
+from mop_core.teachers import Teacher, load_teacher
 from mop_core.walker.envs import ACT_DIM, OBS_DIM
 from mop_core.walker.tasks import check_task_list
 
@@ -322,18 +319,6 @@ def distill_students(sources: StudentSources, config: DistillConfig, schedule: T
         write_timing(timing, seconds, device, steps=schedule.steps, runs=len(seeds),
                      steps_per_second=per_second(schedule.steps, seconds), resumed_from_step=resumed_from)
     return records
-
-
-def check_student_files(runs: list[StudentRun], study_seed: int,
-                        teacher_config: Callable[[str, str], TeacherConfig], record: Path) -> None:
-    """Before any compute: each teacher was trained as the study now says (task, level, seed, PBRL
-    settings, dataset content; ``teacher_config(actor, level)`` gives the expected settings), and the files
-    are the ones the student_inputs stage recorded (``record``, the DVC dependency of these students)."""
-    for t in runs[0].all_teachers:
-        sources = "+".join(str(read_dataset_attrs(d)["content_sha256"]) for d in t.datasets)
-        check_teacher_checkpoint(t.paths.checkpoint, t.task, t.level, t.seed, study_seed,
-                                 teacher_config(t.actor, t.level), sources)
-    check_student_inputs(runs, read_json(record), record)
 
 
 def write_tau_curves(directory: Path, curve: list[dict]) -> None:

@@ -210,14 +210,10 @@ class Catalogue:
         return group_by(self.teachers, "entry")
 
     def distill_stages(self) -> dict[str, dict[str, list[StudentRun]]]:
-        """dvc.yaml distill stage -> its entries (:meth:`student_entries`): ``distill`` for plain MOP, the
-        variant's :attr:`~mop_core.experiment.variants.Variant.stage`, ``distill_substitute`` for a substituted
-        task set."""
+        """dvc.yaml distill stage (:attr:`StudentRun.stage`) -> its entries (:meth:`student_entries`)."""
         stages: dict[str, dict[str, list[StudentRun]]] = {}
         for entry, runs in self.student_entries().items():
-            first = runs[0]
-            stage = "distill_substitute" if first.substitute else first.variant.stage if first.variant else "distill"
-            stages.setdefault(stage, {})[entry] = runs
+            stages.setdefault(runs[0].stage, {})[entry] = runs
         return stages
 
 

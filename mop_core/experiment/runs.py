@@ -342,6 +342,12 @@ class StudentRun:
     def teacher_seed(self) -> int:
         return self.teachers[0].seed
 
+    @property
+    def stage(self) -> str:
+        """The dvc.yaml stage that trains it: ``distill`` for plain MOP, its variant's
+        :attr:`~mop_core.experiment.variants.Variant.stage`, ``distill_substitute`` for a substituted task set."""
+        return "distill_substitute" if self.substitute else self.variant.stage if self.variant else "distill"
+
     def configure(self, config: "DistillConfig") -> "DistillConfig":
         """The distillation config it trains with: ``config`` (plain MOP's, of its loss) with its variant's change."""
         return self.variant.apply(config) if self.variant else config
