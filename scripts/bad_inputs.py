@@ -44,7 +44,9 @@ STAGE = {
                 "--seeds", "0"],
     "multitask": ["stages/train_multitask.py", "--level", "medium", "--seed", "0"],
     "student_inputs": ["stages/student_inputs.py"],
-    "distill": ["stages/distill.py", "--loss", "mse", "--pairing", "medium", "--seed", "0"],
+    "distill": ["stages/distill.py", "--entry", "mse-medium"],
+    "compose": ["stages/compose.py"],
+    "state_shift": ["stages/state_shift.py"],
     "eval": ["stages/eval.py"],
     "shared_computation": ["stages/shared_computation.py"],
     "report": ["stages/report.py"],
@@ -222,9 +224,9 @@ def cases() -> list[Case]:  # noqa: C901 (a flat list of cases)
         changed[changed.index(args[0]) + 1] = args[1]
         p.append(Case(f"train_teachers {' '.join(args)}", "teacher", lambda ws: None, culprit, tuple(changed)))
     distill = STAGE["distill"][1:]
-    for args, culprit in [(("--pairing", "expert+medium+x"), "--pairing"), (("--loss", "l2"), "--loss"),
-                          (("--seed", "-2"), "--seed")]:
-        changed = list(distill)
+    for args, culprit in [(("--entry", "mse-expert"), "--entry"), (("--entry", "l2-medium"), "--entry"),
+                          (("--seeds", "-2"), "--seeds")]:
+        changed = [*distill, "--seeds", "0"] if args[0] == "--seeds" else list(distill)
         changed[changed.index(args[0]) + 1] = args[1]
         p.append(Case(f"distill {' '.join(args)}", "distill", lambda ws: None, culprit, tuple(changed)))
     # files
@@ -273,7 +275,62 @@ def cases() -> list[Case]:  # noqa: C901 (a flat list of cases)
     p.append(Case("a student's run already in progress", "distill", held("distill"), "locks/distill"))
     p.append(Case("eval already in progress", "eval", held("eval"), "locks/eval"))
     p.append(Case("a teacher diverges (learning rate 1e30)", "teacher",
-                  set_param("train_teachers.pbrl.learning_rate", 1e30), "teacher stand-medium-0"))
+                  set_param("train_teachers.pbrl.learning_rate", 1e30), "teachers medium-deterministic"))
+    return p + provenance_cases()
+
+
+def rerun(stage: str, key: str, value) -> Callable[[Path], None]:
+    """A stage's outputs rebuilt with ``key`` = ``value``, then params.yaml as it was: files that look
+    right but were made under other settings."""
+    def breaks(ws: Path) -> None:
+        before = (ws / "params.yaml").read_text()
+        set_param(key, value)(ws)
+        result = run([sys.executable, *STAGE[stage]], ws, timeout=300)
+        (ws / "params.yaml").write_text(before)
+        if result.returncode != 0:
+            raise RuntimeError(f"{stage} with {key}={value!r} failed: {result.stderr[-500:]}")
+    return breaks
+
+
+def write_text(rel: str, text: str) -> Callable[[Path], None]:
+    return lambda ws: (ws / rel).write_text(text)
+
+
+def provenance_cases() -> list[Case]:
+    """The later families' inputs swapped, rebuilt under other settings or emptied (issue 40): composed
+    datasets, reference episodes, checkpoints of other widths, emptied records."""
+    online, random99 = "data/composed/stand-medium-online.hdf5", "data/composed/stand-medium-random99.hdf5"
+    reference, expert = "data/composed/stand-medium-reference.hdf5", "data/datasets/stand-expert.hdf5"
+    teacher_pt = "data/teachers/medium-deterministic/stand-medium-deterministic-0.pt"
+    student_pt, w8_pt = "data/students/mse-medium/mse-medium-0.pt", "data/students/mse-w8-medium/mse-w8-medium-0.pt"
+    on_online, reweight = ("--entry", "mse-on_online_w8-medium"), ("--entry", "mse-reweight_random99_w8-medium")
+    p = []
+    for name, breaks in [("walk's composed online data in stand's slot",
+                          copy_over(online.replace("stand-", "walk-"), online)),
+                         ("random99 in online's slot", copy_over(random99, online)),
+                         ("collect's stand-medium in the composed online slot",
+                          copy_over("data/datasets/stand-medium.hdf5", online)),
+                         ("composed with state_shift.episodes 4, params say 2", rerun("compose", "state_shift.episodes",
+                                                                                      4))]:
+        p.append(Case(f"{name} (student_inputs)", "student_inputs", breaks, online))
+        p.append(Case(f"{name} (distill)", "distill", breaks, online, on_online))
+    p.append(Case("composed with state_shift.episodes 4, params say 2 (state_shift)", "state_shift",
+                  rerun("compose", "state_shift.episodes", 4), online))
+    walk_reference = copy_over(reference.replace("stand-", "walk-"), reference)
+    p.append(Case("walk's reference episodes in stand's slot (state_shift)", "state_shift", walk_reference, reference))
+    p.append(Case("walk's reference episodes in stand's slot (reweighted students)", "distill", walk_reference,
+                  reference, reweight))
+    p.append(Case("walk-expert in stand-expert's slot (state_shift)", "state_shift",
+                  copy_over(expert.replace("stand-", "walk-"), expert), expert))
+    other_widths = rerun("teacher", "train_teachers.pbrl.hidden_sizes", [8, 8])
+    p.append(Case("a teacher of other widths (compose)", "compose", other_widths, teacher_pt))
+    p.append(Case("a teacher of other widths (eval)", "eval", other_widths, teacher_pt))
+    for stage in ("eval", "shared_computation"):
+        p.append(Case(f"a width-16 student in the width-8 slot ({stage})", stage, copy_over(student_pt, w8_pt), w8_pt))
+    p.append(Case("state_shift metrics emptied to {} (report)", "report",
+                  write_text("results/state_shift/metrics.json", "{}"), "results/state_shift/metrics.json"))
+    p.append(Case("eval metrics a JSON list (report)", "report", write_text("results/eval/metrics.json", "[]"),
+                  "results/eval/metrics.json"))
     return p
 
 

@@ -19,7 +19,8 @@ import yaml
 from conftest import ROOT, TEST_DEVICE
 
 sys.path.insert(0, str(ROOT / "scripts"))
-from bad_inputs import committed_project, copy_project  # noqa: E402
+from bad_inputs import classify, committed_project, copy_project, provenance_cases, restore, snapshot  # noqa: E402
+from bad_inputs import run as run_stage_script  # noqa: E402
 
 pytestmark = pytest.mark.slow
 
@@ -660,6 +661,44 @@ def test_bad_parameter_fails_before_compute_and_names_the_key(repo, tmp_path):
     result = _run(student, work, check=False)
     assert "missing input data/teachers/medium-deterministic/stand-medium-deterministic-0.pt" in result.stderr
     assert not (work / "data" / "students").exists()
+
+
+def test_every_swapped_rebuilt_or_emptied_input_of_the_later_families_is_refused_by_name(repo, tmp_path):
+    """The later families' inputs (scripts/bad_inputs.provenance_cases: composed datasets swapped or composed
+    with other episodes, reference episodes and collect data of another task, a teacher of other widths, a
+    student of another width, emptied records), each on a copy of the study: exit 2, one ``error:`` line
+    naming the file, and nothing the stage writes changed (it refused before any compute)."""
+    ws = tmp_path / "ws"
+    for name in ("stages", "mop_core", "profiles", "params.yaml", "dvc.yaml", "data", "results"):
+        (shutil.copytree if (repo / name).is_dir() else shutil.copy)(repo / name, ws / name)
+    backup = snapshot(ws)
+    records = {"student_inputs": "data/student_inputs", "state_shift": "results/state_shift/metrics.json",
+               "report": "results/report.md", "compose": "results/compose/metrics.json"}
+    outcomes = []
+    for case in provenance_cases():
+        case.breaks(ws)
+        written = ws / records.get(case.stage, "results/eval/metrics.json")
+        before = _tree_digest(written)
+        result = run_stage_script([sys.executable, *_stage_command(case)], ws)
+        outcomes.append((case.name, *classify(result, case.culprit), before == _tree_digest(written)))
+        restore(ws, backup)
+    assert len(outcomes) == 18 and all(o[1] == "named" and o[3] for o in outcomes), \
+        [o for o in outcomes if o[1] != "named" or not o[3]]
+
+
+def _stage_command(case) -> list[str]:
+    from bad_inputs import STAGE
+
+    return [STAGE[case.stage][0], *(case.args if case.args is not None else STAGE[case.stage][1:])]
+
+
+def _tree_digest(path: Path) -> str:
+    """One digest of a file's or a folder's bytes (what a refused stage must leave as it was)."""
+    digest = hashlib.sha256()
+    for file in sorted([path] if path.is_file() else path.rglob("*") if path.is_dir() else []):
+        if file.is_file():
+            digest.update(file.name.encode() + file.read_bytes())
+    return digest.hexdigest()
 
 
 def test_a_bad_param_stops_dvc_repro_before_any_output_is_deleted(repo):
