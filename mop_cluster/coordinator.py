@@ -132,14 +132,9 @@ def run_on_ray(ray, root: Path, jobs: list[Job], sized: dict, address: str | Non
                                                               resources.cpus, *ups)
         waiting = list(refs.values())
         names = {ref: name for name, ref in refs.items()}
-        try:
-            return _collect(ray, waiting, names, len(jobs), log)
-        except BaseException:  # a failed entry or Ctrl-C: stop every worker
-            for ref in refs.values():
-                ray.cancel(ref, force=True)
-            raise
-    finally:
-        ray.shutdown()
+        return _collect(ray, waiting, names, len(jobs), log)
+    finally:  # also on a failed entry or Ctrl-C: the job's workers die with it, and their reapers take each
+        ray.shutdown()  # entry's dvc repro and stage along (no ray.cancel: Ray 2.60 aborted on it)
 
 
 def _collect(ray, waiting, names, total: int, log) -> list[EntryResult]:
@@ -149,8 +144,8 @@ def _collect(ray, waiting, names, total: int, log) -> list[EntryResult]:
         try:
             result = ray.get(ready[0])
         except Exception as exc:  # the entry's EntryFailed, or a worker lost beyond its retries
-            cause = getattr(exc, "cause", None) or exc
-            raise ClusterError(f"{names[ready[0]]}: {cause}") from None
+            cause, name = str(getattr(exc, "cause", None) or exc), names[ready[0]]
+            raise ClusterError(cause if cause.startswith(f"{name}: ") else f"{name}: {cause}") from None
         results.append(result)
         log(f"mop-cluster: {names[ready[0]]} {'ran' if result.ran else 'restored'} in {result.seconds:.1f} s "
             f"on {result.node} ({len(results)}/{total})")

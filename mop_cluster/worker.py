@@ -3,15 +3,18 @@
 The worker runs ``dvc repro <entry>``: the upstream entries, already run by other workers, are restored
 from the shared run cache, and the entry itself runs (or is restored, if any clone ran it before). DVC
 saves an entry's outputs to the cache and its record to the run cache only after its command succeeds,
-and the clone is deleted afterwards, so a killed worker leaves nothing half-written behind.
+and the clone is deleted afterwards, so a killed worker leaves nothing half-written behind. ``dvc repro``
+runs under ``mop_cluster.reaper``, which kills it and the stage's processes when this worker dies.
 """
 
 from __future__ import annotations
 
 import os
 import shutil
+import signal
 import socket
 import subprocess
+import sys
 import tempfile
 import time
 from dataclasses import dataclass
@@ -57,8 +60,7 @@ def _maybe_die(entry: str, scratch: Path, proc: subprocess.Popen) -> None:
         return
     marker.touch()
     time.sleep(1.0)  # mid-entry
-    subprocess.run(["pkill", "-KILL", "-P", str(proc.pid)], check=False)  # the stage's command, then dvc,
-    proc.kill()                                                          # as a node's loss takes them
+    os.killpg(proc.pid, signal.SIGKILL)  # dvc and the stage's command, as a node's loss takes them
     os._exit(137)
 
 
@@ -74,8 +76,9 @@ def run_entry(root: str, commit: str, entry: str, cache_dir: str, scratch: str, 
         subprocess.run(["dvc", "cache", "dir", "--local", cache_dir], cwd=clone, check=True, capture_output=True)
         env = os.environ | {"MOP_PROGRESS": "0", "MOP_THREADS": str(cpus)}
         dvc_start = time.perf_counter()
-        proc = subprocess.Popen(["dvc", "repro", entry], cwd=clone, env=env, text=True,
-                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        reaper = [sys.executable, "-m", "mop_cluster.reaper", str(os.getpid())]  # dies with this process
+        proc = subprocess.Popen([*reaper, "dvc", "repro", entry], cwd=clone, env=env, text=True,
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
         _maybe_die(entry, Path(scratch), proc)
         log, _ = proc.communicate()
         dvc_seconds = time.perf_counter() - dvc_start

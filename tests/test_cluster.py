@@ -150,3 +150,112 @@ def test_an_entry_with_threads_auto_asks_for_the_auto_share(tmp_path, tiny_param
     assert entry_resources(["distill@mse-medium"], file, auto_cpus=3)["distill@mse-medium"].cpus == 3
     assert main(["repro", "--auto-threads", "0"]) == 2
 
+
+def _study(tmp_path: Path, **params_changes) -> Path:
+    """The tiny study committed in a fresh repository (what mop-cluster's workers clone)."""
+    import subprocess
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    from bad_inputs import committed_project
+
+    study = committed_project(Path(__file__).resolve().parents[1], tmp_path / "study")
+    if params_changes:
+        params = yaml.safe_load((study / "params.yaml").read_text())
+        for key, value in params_changes.items():
+            section, name = key.split("__")
+            params[section][name] = value
+        (study / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+        subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qam", "p"], cwd=study,
+                       check=True, capture_output=True)
+    return study
+
+
+CLUSTER_ENV = {"RAY_USAGE_STATS_ENABLED": "0", "MOP_PROGRESS": "0"}
+
+
+@pytest.mark.slow
+def test_a_failing_entry_stops_the_run_naming_it_with_the_last_lines_of_its_log(tmp_path):
+    import subprocess
+
+    study = _study(tmp_path, distill__learning_rate=-1.0)  # the params entry refuses it
+    result = subprocess.run(["mop-cluster", "repro", "--workers", "2"], cwd=study, capture_output=True, text=True,
+                            env=os.environ | CLUSTER_ENV, timeout=600)
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert "error: params: dvc repro failed; last lines of its log:" in result.stderr, result.stderr
+    assert "error: distill.learning_rate: expected a positive" in result.stderr, result.stderr
+    assert not (study / "data" / "datasets").exists()  # nothing after it ran
+
+
+def _processes_under(path: Path) -> list[str]:
+    """Command lines of the live processes whose working directory is ``path`` or below it."""
+    found = []
+    for proc in Path("/proc").iterdir():
+        try:
+            if proc.name.isdigit() and Path(os.readlink(proc / "cwd")).is_relative_to(path):
+                found.append((proc / "cmdline").read_text().replace("\0", " "))
+        except OSError:  # gone, or not ours
+            continue
+    return found
+
+
+@pytest.mark.slow
+def test_ctrl_c_stops_every_worker_and_leaves_no_process_behind(tmp_path):
+    import signal
+    import subprocess
+    import time
+
+    study = _study(tmp_path)
+    coordinator = subprocess.Popen(["mop-cluster", "repro", "--workers", "2"], cwd=study, env=os.environ | CLUSTER_ENV,
+                                   stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    scratch = study / ".dvc" / "tmp" / "mop-cluster"
+    deadline = time.time() + 300
+    while not any("stages/" in cmd for cmd in _processes_under(scratch)):  # a worker's stage command runs
+        assert coordinator.poll() is None and time.time() < deadline, coordinator.communicate()[0]
+        time.sleep(0.5)
+    coordinator.send_signal(signal.SIGINT)
+    out, _ = coordinator.communicate(timeout=120)
+    assert coordinator.returncode != 0, out
+    time.sleep(2)
+    assert _processes_under(scratch) == [], out
+    assert not (study / ".dvc" / "tmp" / "mop-cluster.pid").exists()  # the next coordinator may start
+
+
+def _processes_with(token: str) -> list[str]:
+    """Command lines of the live processes that mention ``token``."""
+    found = []
+    for proc in Path("/proc").iterdir():
+        try:
+            if proc.name.isdigit() and token in (cmd := (proc / "cmdline").read_text().replace("\0", " ")):
+                found.append(cmd)
+        except OSError:  # gone, or not ours
+            continue
+    return found
+
+
+def test_the_reaper_kills_the_command_and_its_children_when_its_parent_is_killed(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+    import uuid
+
+    token = f"reaper-test-{uuid.uuid4().hex}"
+    sleeper = f"import time; time.sleep(120)  # {token}"
+    # the parent (a Ray worker's stand-in) starts the reaper, whose command starts a grandchild, then waits
+    parent_code = (f"import os, subprocess, sys, time\n"
+                   f"subprocess.Popen([sys.executable, '-m', 'mop_cluster.reaper', str(os.getpid()), 'sh', '-c', "
+                   f"{f'{sys.executable} -c {sleeper!r} & {sys.executable} -c {sleeper!r}; wait'!r}], "
+                   f"start_new_session=True)\n"
+                   f"time.sleep(120)")
+    parent = subprocess.Popen([sys.executable, "-c", parent_code])
+    deadline = time.time() + 30
+    while len([c for c in _processes_with(token) if c.startswith(sys.executable)]) < 2:
+        assert time.time() < deadline, _processes_with(token)
+        time.sleep(0.1)
+    parent.send_signal(signal.SIGKILL)  # as Ray's shutdown kills its workers: no handler of the parent runs
+    parent.wait()
+    deadline = time.time() + 10
+    while _processes_with(token) and time.time() < deadline:
+        time.sleep(0.1)
+    assert _processes_with(token) == []
