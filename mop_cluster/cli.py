@@ -6,6 +6,9 @@
                                                # KubeRay, Ray on Slurm); the workspace and its DVC cache
                                                # must be on a filesystem every node mounts
     mop-cluster repro --gpus-per-run 0.25      # 4 training entries share one GPU
+    mop-cluster repro --address HOST:6379 --git-url URL --dvc-remote   # nodes that share no filesystem:
+                                               # clones of URL (HEAD pushed there), outputs through the
+                                               # workspace's default DVC remote
     mop-cluster exp run -S distill.learning_rate=3e-4,1e-3   # one DVC experiment per value (several -S:
                                                # their grid), every experiment's stale entries on the cluster
 """
@@ -39,6 +42,11 @@ def _parser() -> argparse.ArgumentParser:
         sub.add_argument("--retries", type=int, default=2, help="retries of an entry whose worker died")
         sub.add_argument("--auto-threads", type=int, default=2, help="CPUs of an entry whose threads are 'auto'")
         sub.add_argument("--root", type=Path, default=Path("."), help="the DVC workspace (default: here)")
+    run.add_argument("--git-url", help="where workers clone HEAD from (default: the workspace's path, on a "
+                                       "filesystem every node mounts); push HEAD there first")
+    run.add_argument("--dvc-remote", action="store_true",
+                     help="workers share no filesystem: outputs and run-cache records travel through the "
+                          "workspace's default DVC remote (committed in .dvc/config) instead of its cache")
     return parser
 
 
@@ -58,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
         return _exp_run(args)
     try:
         run = repro(args.root, args.address, args.workers, args.gpus_per_run, args.retries,
-                    auto_cpus=args.auto_threads)
+                    auto_cpus=args.auto_threads, git_url=args.git_url, dvc_remote=args.dvc_remote)
     except (ClusterError, EntryFailed, KeyError, ValueError) as exc:
         return _error(str(exc))
     ran = sum(result.ran for result in run.results)

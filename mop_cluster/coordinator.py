@@ -11,7 +11,7 @@ from pathlib import Path
 
 from .dag import stage_graph, stale_entries
 from .resources import entry_resources
-from .worker import EntryResult, run_after, stages_ran
+from .worker import EntryResult, Sharing, run_after, stages_ran
 
 LOCK = Path(".dvc/tmp/mop-cluster.pid")
 SCRATCH = Path(".dvc/tmp/mop-cluster")  # the workers' clones
@@ -65,30 +65,61 @@ def _check_committed(root: Path) -> str:
     return _git(["rev-parse", "HEAD"], root)
 
 
-def _cache_dir(root: Path) -> str:
-    out = subprocess.run(["dvc", "cache", "dir"], cwd=root, check=True, capture_output=True, text=True).stdout
-    return out.strip()
+def _dvc_out(args: list[str], root: Path) -> str:
+    return subprocess.run(["dvc", *args], cwd=root, check=True, capture_output=True, text=True).stdout.strip()
+
+
+def sharing(root: Path, commit: str, git_url: str | None = None, dvc_remote: bool = False) -> Sharing:
+    """How the workers reach the study, checked before any compute: the workspace and its DVC cache on
+    one filesystem (default), or ``git_url`` (where HEAD must be a branch or tag tip) and, with
+    ``dvc_remote``, the workspace's default DVC remote, defined in the committed .dvc/config."""
+    if git_url is not None:
+        listed = subprocess.run(["git", "ls-remote", git_url], cwd=root, capture_output=True, text=True)
+        if listed.returncode != 0:
+            why = (listed.stderr.strip().splitlines() or ["git ls-remote failed"])[-1]
+            raise ClusterError(f"--git-url {git_url}: not a git repository this machine can read ({why})")
+        if commit not in {line.split()[0] for line in listed.stdout.splitlines() if line.strip()}:
+            raise ClusterError(f"--git-url {git_url}: HEAD ({commit[:12]}) is no branch or tag tip there; "
+                               "git push it first (workers clone it)")
+    source = git_url or str(root)
+    if not dvc_remote:
+        return Sharing(source, cache_dir=_dvc_out(["cache", "dir"], root))
+    name = _dvc_out(["remote", "default"], root)
+    settings = _dvc_out(["config", "--project", "--list"], root).splitlines()  # remote.NAME.url=...
+    committed = {line.split(".")[1] for line in settings if line.startswith("remote.")}
+    if not name or name not in committed:
+        raise ClusterError("--dvc-remote: the workspace's default DVC remote must be defined in the committed "
+                           ".dvc/config, so that every clone has it (dvc remote add -d NAME URL; git commit); "
+                           f"default: {name or 'none'}, committed: {', '.join(sorted(committed)) or 'none'}")
+    return Sharing(source, remote=name)
 
 
 def repro(root: Path, address: str | None = None, workers: int | None = None, gpus_per_run: float = 0.0,
-          retries: int = 2, scratch: Path | None = None, log=print, auto_cpus: int = 2) -> ClusterRun:
-    """Run ``root``'s stale entries on a Ray cluster, then ``dvc repro`` in ``root`` (restoring them)."""
+          retries: int = 2, scratch: Path | None = None, log=print, auto_cpus: int = 2,
+          git_url: str | None = None, dvc_remote: bool = False) -> ClusterRun:
+    """Run ``root``'s stale entries on a Ray cluster, then ``dvc repro`` in ``root`` (restoring them).
+    With ``dvc_remote`` the workers share no filesystem with ``root``: the workspace first pushes what it
+    has, each worker pulls and pushes through the remote, and the closing ``dvc repro --pull`` fetches."""
     import ray
 
     root = root.resolve()
     start = time.perf_counter()
     with coordinator_lock(root):
         commit = _check_committed(root)
+        shared = sharing(root, commit, git_url, dvc_remote)
         graph = stage_graph(root)
         entries = stale_entries(root, graph)
         sized = entry_resources(entries, root / "params.yaml", gpus_per_run, auto_cpus=auto_cpus)
         run = ClusterRun(entries)
         if entries:
+            if shared.remote:  # the up-to-date entries' outputs, which the workers' entries read
+                subprocess.run(["dvc", "push", "-q"], cwd=root, capture_output=True, text=True)
             jobs = [Job(entry, commit, entry, tuple(u for u in graph.upstream[entry] if u in entries))
                     for entry in entries]
             run.results = run_on_ray(ray, root, jobs, sized, address, workers, gpus_per_run, retries,
-                                     scratch or root / SCRATCH, log)
-        final = subprocess.run(["dvc", "repro"], cwd=root, capture_output=True, text=True)
+                                     scratch or root / SCRATCH, log, shared)
+        final = subprocess.run(["dvc", "repro", *(["--pull"] if shared.remote else [])], cwd=root,
+                               capture_output=True, text=True)
         if final.returncode != 0:
             raise ClusterError(f"dvc repro in {root} failed:\n{final.stdout[-2000:]}{final.stderr[-2000:]}")
         run.final_ran = stages_ran(final.stdout)
@@ -107,7 +138,8 @@ class Job:
 
 
 def run_on_ray(ray, root: Path, jobs: list[Job], sized: dict, address: str | None, workers: int | None,
-               gpus_per_run: float, retries: int, scratch: Path, log) -> list[EntryResult]:
+               gpus_per_run: float, retries: int, scratch: Path, log,
+               shared: Sharing | None = None) -> list[EntryResult]:
     """Every job as a Ray task in the given (DAG) order, sized by ``sized[job.key]``; stops them all on
     the first failure or Ctrl-C."""
     if address:
@@ -123,13 +155,13 @@ def run_on_ray(ray, root: Path, jobs: list[Job], sized: dict, address: str | Non
         task = ray.remote(run_after)
         refs = {}
 
-        cache = _cache_dir(root)
+        shared = shared or Sharing(str(root), cache_dir=_dvc_out(["cache", "dir"], root))
         for job in jobs:  # DAG order: every upstream ref exists before its readers are submitted
             ups = [refs[u] for u in job.upstream if u in refs]
             resources = sized[job.key]
-            refs[job.key] = task.options(num_cpus=resources.cpus, num_gpus=resources.gpus, max_retries=retries,
-                                         name=job.key).remote(str(root), job.commit, job.entry, cache, str(scratch),
-                                                              resources.cpus, *ups)
+            options = task.options(num_cpus=resources.cpus, num_gpus=resources.gpus, max_retries=retries,
+                                   name=job.key)
+            refs[job.key] = options.remote(shared, job.commit, job.entry, str(scratch), resources.cpus, *ups)
         waiting = list(refs.values())
         names = {ref: name for name, ref in refs.items()}
         return _collect(ray, waiting, names, len(jobs), log)

@@ -60,8 +60,8 @@ def entry_resources(entries: list[str], params_file: Path, gpus_per_run: float =
                     params: dict | None = None, auto_cpus: int = 2) -> dict[str, EntryResources]:
     """Each entry's CPUs and GPU share, read by the CPU_KEYS table from ``params`` (default: ``params_file``'s
     content; the file names them in errors). A ``threads: auto`` key counts ``auto_cpus``."""
-    if params is None:
-        params = yaml.safe_load(params_file.read_text()) or {}
+    if params is None:  # a project without params.yaml: every entry one CPU
+        params = yaml.safe_load(params_file.read_text()) or {} if params_file.exists() else {}
     sized = {}
     for entry in entries:
         how, keys = CPU_KEYS.get(family(entry), ("max", ()))

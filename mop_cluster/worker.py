@@ -26,6 +26,22 @@ KILL_ONCE = "MOP_CLUSTER_KILL_ONCE"
 
 
 @dataclass(frozen=True)
+class Sharing:
+    """How a worker's clone reaches the study. One filesystem: ``source`` is the workspace's path and
+    ``cache_dir`` its DVC cache, which every clone uses. Across machines: ``source`` is a git URL every node
+    can reach (HEAD pushed there) and ``remote`` the DVC remote outputs and run-cache records travel through
+    (the workspace's default remote): each clone pulls what it reads and pushes what it ran."""
+
+    source: str
+    cache_dir: str | None = None
+    remote: str | None = None
+
+    def __post_init__(self):
+        if (self.cache_dir is None) == (self.remote is None):
+            raise ValueError("Sharing: exactly one of cache_dir (one filesystem) and remote (across machines)")
+
+
+@dataclass(frozen=True)
 class EntryResult:
     entry: str
     ran: bool            # False: restored from the run cache (another clone had run it)
@@ -43,9 +59,9 @@ class EntryFailed(RuntimeError):
     """An entry's command failed: its name and the last lines of its log (one message: picklable)."""
 
 
-def _failed(entry: str, log: str) -> EntryFailed:
+def _failed(entry: str, log: str, command: str = "dvc repro") -> EntryFailed:
     tail = "\n".join(log.strip().splitlines()[-20:])
-    return EntryFailed(f"{entry}: dvc repro failed; last lines of its log:\n{tail}")
+    return EntryFailed(f"{entry}: {command} failed; last lines of its log:\n{tail}")
 
 
 def _git(args: list[str], cwd: Path) -> None:
@@ -64,34 +80,55 @@ def _maybe_die(entry: str, scratch: Path, proc: subprocess.Popen) -> None:
     os._exit(137)
 
 
-def run_entry(root: str, commit: str, entry: str, cache_dir: str, scratch: str, cpus: int = 1) -> EntryResult:
-    """``dvc repro entry`` in a fresh clone of ``root`` at ``commit`` whose cache is ``cache_dir``, told the
-    ``cpus`` Ray gave it (``MOP_THREADS``: what a ``threads: auto`` param resolves to there)."""
+def _clone(sharing: Sharing, commit: str, clone: Path) -> None:
+    local = Path(sharing.source).is_dir()  # a path: objects shared, not copied
+    _git(["clone", "-q", *(["--shared"] if local else []), "--no-checkout", sharing.source, str(clone)], clone.parent)
+    _git(["checkout", "-q", commit], clone)
+    if sharing.cache_dir is not None:
+        subprocess.run(["dvc", "cache", "dir", "--local", sharing.cache_dir], cwd=clone, check=True,
+                       capture_output=True)
+    else:  # dvc repro --pull reads the default remote
+        subprocess.run(["dvc", "remote", "default", "--local", sharing.remote], cwd=clone, check=True,
+                       capture_output=True)
+
+
+def _dvc(args: list[str], clone: Path, env: dict, entry: str, scratch: Path, may_die: bool = False) -> str:
+    """``dvc args`` under the reaper (it dies with this process); the log, or EntryFailed with its tail."""
+    reaper = [sys.executable, "-m", "mop_cluster.reaper", str(os.getpid())]
+    proc = subprocess.Popen([*reaper, "dvc", *args], cwd=clone, env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
+    if may_die:
+        _maybe_die(entry, scratch, proc)
+    log, _ = proc.communicate()
+    if proc.returncode != 0:
+        raise _failed(entry, log, f"dvc {args[0]}")
+    return log
+
+
+def run_entry(sharing: Sharing, commit: str, entry: str, scratch: str, cpus: int = 1) -> EntryResult:
+    """``dvc repro entry`` in a fresh clone of ``sharing.source`` at ``commit``, told the ``cpus`` Ray gave it
+    (``MOP_THREADS``: what a ``threads: auto`` param resolves to there). Through a remote, the clone pulls
+    what it reads (``dvc repro --pull``) and pushes the entry's outputs and the run-cache records."""
     start = time.perf_counter()
     Path(scratch).mkdir(parents=True, exist_ok=True)
     clone = Path(tempfile.mkdtemp(prefix=f"{entry.replace('@', '_')}-", dir=scratch))
     try:
-        _git(["clone", "-q", "--shared", "--no-checkout", root, str(clone)], Path(scratch))
-        _git(["checkout", "-q", commit], clone)
-        subprocess.run(["dvc", "cache", "dir", "--local", cache_dir], cwd=clone, check=True, capture_output=True)
+        _clone(sharing, commit, clone)
         env = os.environ | {"MOP_PROGRESS": "0", "MOP_THREADS": str(cpus)}
         dvc_start = time.perf_counter()
-        reaper = [sys.executable, "-m", "mop_cluster.reaper", str(os.getpid())]  # dies with this process
-        proc = subprocess.Popen([*reaper, "dvc", "repro", entry], cwd=clone, env=env, text=True,
-                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
-        _maybe_die(entry, Path(scratch), proc)
-        log, _ = proc.communicate()
+        pull = ["--pull"] if sharing.remote else []
+        log = _dvc(["repro", *pull, entry], clone, env, entry, Path(scratch), may_die=True)
         dvc_seconds = time.perf_counter() - dvc_start
-        if proc.returncode != 0:
-            raise _failed(entry, log)
+        if sharing.remote:
+            _dvc(["push", "--run-cache", entry], clone, env, entry, Path(scratch))
         ran = f"{RAN}{entry}'" in log
         return EntryResult(entry, ran, time.perf_counter() - start, dvc_seconds, socket.gethostname())
     finally:
         shutil.rmtree(clone, ignore_errors=True)
 
 
-def run_after(root: str, commit: str, entry: str, cache_dir: str, scratch: str, cpus: int,
+def run_after(sharing: Sharing, commit: str, entry: str, scratch: str, cpus: int,
               *upstream: EntryResult) -> EntryResult:
     """The Ray task: ``upstream`` are the results of the entries ``entry`` reads from (Ray passes them
     once they exist, so an entry starts only after its inputs are in the run cache)."""
-    return run_entry(root, commit, entry, cache_dir, scratch, cpus)
+    return run_entry(sharing, commit, entry, scratch, cpus)

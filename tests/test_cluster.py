@@ -5,6 +5,7 @@ The tiny study through ``mop-cluster repro`` on a two-node Ray cluster is in tes
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -12,7 +13,7 @@ import pytest
 import yaml
 
 from mop_cluster.cli import main
-from mop_cluster.coordinator import ClusterError, _check_committed, coordinator_lock
+from mop_cluster.coordinator import ClusterError, _check_committed, coordinator_lock, sharing
 from mop_cluster.dag import StageGraph
 from mop_cluster.resources import entry_resources, family
 
@@ -259,3 +260,79 @@ def test_the_reaper_kills_the_command_and_its_children_when_its_parent_is_killed
     while _processes_with(token) and time.time() < deadline:
         time.sleep(0.1)
     assert _processes_with(token) == []
+
+
+def _git_run(args: list[str], cwd: Path) -> str:
+    import subprocess
+
+    return subprocess.run(args, cwd=cwd, check=True, capture_output=True, text=True).stdout
+
+
+PIPELINE = """stages:
+  source:
+    cmd: cat seed.txt > source.txt
+    deps: [seed.txt]
+    outs: [source.txt]
+  upper:
+    cmd: tr a-z A-Z < source.txt > upper.txt
+    deps: [source.txt]
+    outs: [upper.txt]
+  copy:
+    matrix:
+      n: [1, 2]
+    cmd: head -c ${item.n} upper.txt > copy${item.n}.txt
+    deps: [upper.txt]
+    outs:
+      - copy${item.n}.txt
+"""
+
+
+def _remote_project(tmp_path: Path) -> tuple[Path, Path, Path]:
+    """A small DVC project whose default remote (a directory) is committed, and a bare git repository
+    it is pushed to: what machines that share no filesystem reach."""
+    work, origin, remote = tmp_path / "work", tmp_path / "origin.git", tmp_path / "remote"
+    work.mkdir()
+    _git_run(["git", "init", "-q", "--bare", str(origin)], tmp_path)
+    for command in (["git", "init", "-q"], ["dvc", "init", "-q"], ["dvc", "remote", "add", "-d", "store", str(remote)]):
+        _git_run(command, work)
+    (work / "dvc.yaml").write_text(PIPELINE)
+    (work / "seed.txt").write_text("source\n")  # a stage without dependencies is never run-cached
+    (work / ".gitignore").write_text("/source.txt\n/upper.txt\n/copy1.txt\n/copy2.txt\n")
+    _git_run(["git", "add", "-A"], work)
+    _git_run(["git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "pipeline"], work)
+    _git_run(["git", "push", "-q", str(origin), "HEAD:refs/heads/main"], work)
+    return work, origin, remote
+
+
+@pytest.mark.slow
+def test_through_a_dvc_remote_the_workers_share_no_cache_and_the_workspace_restores_every_entry(tmp_path):
+    """--git-url and --dvc-remote: each worker clones the bare repository and has a cache of its own; what
+    it reads comes from the remote (dvc repro --pull) and what it ran goes there (dvc push --run-cache).
+    The workspace's closing dvc repro --pull executes nothing, and the outputs are the pipeline's."""
+    import subprocess
+
+    work, origin, remote = _remote_project(tmp_path)
+    command = ["mop-cluster", "repro", "--workers", "2", "--git-url", str(origin), "--dvc-remote"]
+    result = subprocess.run(command, cwd=work, capture_output=True, text=True, env=os.environ | CLUSTER_ENV,
+                            timeout=600)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "4 entries (4 ran on workers, 0 restored)" in result.stdout, result.stdout
+    assert "the workspace's dvc repro executed 0 stage(s)" in result.stdout, result.stdout
+    assert (work / "copy2.txt").read_text() == "SO" and (work / "upper.txt").read_text() == "SOURCE\n"
+    assert list((remote / "runs").rglob("*")), "no run-cache record reached the remote"
+    assert json.loads(_git_run(["dvc", "status", "--json"], work) or "{}") == {}
+
+
+def test_remote_mode_refuses_an_unpushed_head_and_an_uncommitted_remote_before_any_compute(tmp_path):
+    work, origin, _ = _remote_project(tmp_path)
+    (work / "note.txt").write_text("x")
+    _git_run(["git", "add", "note.txt"], work)
+    _git_run(["git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "unpushed"], work)
+    with pytest.raises(ClusterError, match="is no branch or tag tip there; git push it first"):
+        sharing(work, _git_run(["git", "rev-parse", "HEAD"], work).strip(), str(origin))
+    with pytest.raises(ClusterError, match="not a git repository"):
+        sharing(work, "0" * 40, str(tmp_path / "nowhere"))
+    _git_run(["dvc", "remote", "add", "--local", "-d", "mine", str(tmp_path / "mine")], work)
+    with pytest.raises(ClusterError, match="default: mine, committed: store"):
+        sharing(work, "0" * 40, None, dvc_remote=True)
+    assert sharing(work, "0" * 40).cache_dir == str(work / ".dvc" / "cache")
