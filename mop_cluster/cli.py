@@ -42,11 +42,11 @@ def _parser() -> argparse.ArgumentParser:
         sub.add_argument("--retries", type=int, default=2, help="retries of an entry whose worker died")
         sub.add_argument("--auto-threads", type=int, default=2, help="CPUs of an entry whose threads are 'auto'")
         sub.add_argument("--root", type=Path, default=Path("."), help="the DVC workspace (default: here)")
-    run.add_argument("--git-url", help="where workers clone HEAD from (default: the workspace's path, on a "
-                                       "filesystem every node mounts); push HEAD there first")
-    run.add_argument("--dvc-remote", action="store_true",
-                     help="workers share no filesystem: outputs and run-cache records travel through the "
-                          "workspace's default DVC remote (committed in .dvc/config) instead of its cache")
+        sub.add_argument("--git-url", help="where workers clone HEAD from (default: the workspace's path, on a "
+                                           "filesystem every node mounts); push HEAD there first")
+        sub.add_argument("--dvc-remote", action="store_true",
+                         help="workers share no filesystem: outputs and run-cache records travel through the "
+                              "workspace's default DVC remote (committed in .dvc/config) instead of its cache")
     return parser
 
 
@@ -82,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
 def _exp_run(args) -> int:
     try:
         run = exp_run(args.root, args.sets, args.address, args.workers, args.gpus_per_run, args.retries,
-                      auto_cpus=args.auto_threads)
+                      auto_cpus=args.auto_threads, git_url=args.git_url, dvc_remote=args.dvc_remote)
     except (ClusterError, EntryFailed, KeyError, ValueError) as exc:
         return _error(str(exc).strip("'\""))
     ran = sum(result.ran for result in run.results)

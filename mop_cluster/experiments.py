@@ -148,9 +148,10 @@ class Recorded:
     ran: tuple[str, ...]
 
 
-def record_experiment(root: Path, experiment: Experiment) -> Recorded:
-    """``dvc exp run --temp -S ...`` in ``root``: with every entry in the run cache it executes nothing."""
-    args = ["dvc", "exp", "run", "--temp"]
+def record_experiment(root: Path, experiment: Experiment, pull: bool = False) -> Recorded:
+    """``dvc exp run --temp -S ...`` in ``root``: with every entry in the run cache it executes nothing
+    (``pull``: the run cache and outputs come from the default DVC remote, where the workers pushed them)."""
+    args = ["dvc", "exp", "run", "--temp", *(["--pull"] if pull else [])]
     for item in experiment.sets:
         args += ["-S", item]
     result = subprocess.run(args, cwd=root, capture_output=True, text=True)
@@ -172,21 +173,29 @@ class ExperimentsRun:
 
 
 def exp_run(root: Path, specs: list[str], address: str | None = None, workers: int | None = None,
-            gpus_per_run: float = 0.0, retries: int = 2, log=print, auto_cpus: int = 2) -> ExperimentsRun:
+            gpus_per_run: float = 0.0, retries: int = 2, log=print, auto_cpus: int = 2,
+            git_url: str | None = None, dvc_remote: bool = False) -> ExperimentsRun:
     """One experiment per combination of ``specs``' values: the stale entries of all of them on a Ray
-    cluster, then ``dvc exp run --temp`` per combination, restoring them (see the module docstring)."""
+    cluster, then ``dvc exp run --temp`` per combination, restoring them (see the module docstring).
+    With ``git_url`` the combinations' commits are pushed there (``refs/mop-cluster/<commit>``) for the
+    workers to fetch; ``dvc_remote`` as in ``coordinator.repro``."""
     import time
 
     import ray
 
-    from .coordinator import SCRATCH, ClusterError, Job, _check_committed, coordinator_lock, run_on_ray
+    from .coordinator import SCRATCH, ClusterError, Job, _check_committed, coordinator_lock, run_on_ray, sharing
     from .resources import entry_resources
 
     root = root.resolve()
     start = time.perf_counter()
     with coordinator_lock(root):
         head = _check_committed(root)
+        shared = sharing(root, head, git_url, dvc_remote)
         experiments = plan_experiments(root, head, specs, root / SCRATCH)
+        if git_url:  # the workers clone git_url: the combinations' commits must be there
+            for experiment in experiments:
+                ref = f"refs/mop-cluster/{experiment.commit}"
+                _git(["push", "-q", git_url, f"{experiment.commit}:{ref}"], root)
         jobs, sized = [], {}
         for experiment in experiments:
             params = yaml.safe_load(_git(["show", f"{experiment.commit}:params.yaml"], root))
@@ -201,11 +210,13 @@ def exp_run(root: Path, specs: list[str], address: str | None = None, workers: i
             + "; ".join(f"{e.label} ({len(e.entries)})" for e in experiments))
         run = ExperimentsRun(experiments)
         if jobs:
+            if shared.remote:  # the up-to-date entries' outputs, which the workers' entries read
+                subprocess.run(["dvc", "push", "-q"], cwd=root, capture_output=True, text=True)
             run.results = run_on_ray(ray, root, jobs, sized, address, workers, gpus_per_run, retries,
-                                     root / SCRATCH, log)
+                                     root / SCRATCH, log, shared)
         for experiment in experiments:
             try:
-                recorded = record_experiment(root, experiment)
+                recorded = record_experiment(root, experiment, pull=shared.remote is not None)
             except RuntimeError as exc:
                 raise ClusterError(str(exc)) from None
             run.recorded.append(recorded)

@@ -83,6 +83,8 @@ def _maybe_die(entry: str, scratch: Path, proc: subprocess.Popen) -> None:
 def _clone(sharing: Sharing, commit: str, clone: Path) -> None:
     local = Path(sharing.source).is_dir()  # a path: objects shared, not copied
     _git(["clone", "-q", *(["--shared"] if local else []), "--no-checkout", sharing.source, str(clone)], clone.parent)
+    if subprocess.run(["git", "cat-file", "-e", f"{commit}^{{commit}}"], cwd=clone).returncode != 0:
+        _git(["fetch", "-q", "origin", commit], clone)  # an experiment's commit: a ref clone does not fetch
     _git(["checkout", "-q", commit], clone)
     if sharing.cache_dir is not None:
         subprocess.run(["dvc", "cache", "dir", "--local", sharing.cache_dir], cwd=clone, check=True,

@@ -274,8 +274,9 @@ PIPELINE = """stages:
     deps: [seed.txt]
     outs: [source.txt]
   upper:
-    cmd: tr a-z A-Z < source.txt > upper.txt
+    cmd: tr a-z A-Z < source.txt > upper.txt && echo ${suffix} >> upper.txt
     deps: [source.txt]
+    params: [suffix]
     outs: [upper.txt]
   copy:
     matrix:
@@ -297,6 +298,7 @@ def _remote_project(tmp_path: Path) -> tuple[Path, Path, Path]:
         _git_run(command, work)
     (work / "dvc.yaml").write_text(PIPELINE)
     (work / "seed.txt").write_text("source\n")  # a stage without dependencies is never run-cached
+    (work / "params.yaml").write_text("suffix: a\n")
     (work / ".gitignore").write_text("/source.txt\n/upper.txt\n/copy1.txt\n/copy2.txt\n")
     _git_run(["git", "add", "-A"], work)
     _git_run(["git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "pipeline"], work)
@@ -308,7 +310,8 @@ def _remote_project(tmp_path: Path) -> tuple[Path, Path, Path]:
 def test_through_a_dvc_remote_the_workers_share_no_cache_and_the_workspace_restores_every_entry(tmp_path):
     """--git-url and --dvc-remote: each worker clones the bare repository and has a cache of its own; what
     it reads comes from the remote (dvc repro --pull) and what it ran goes there (dvc push --run-cache).
-    The workspace's closing dvc repro --pull executes nothing, and the outputs are the pipeline's."""
+    The workspace's closing dvc repro --pull executes nothing, and the outputs are the pipeline's. Then a
+    sweep of two values the same way: two DVC experiments, each dvc exp run --pull executing nothing."""
     import subprocess
 
     work, origin, remote = _remote_project(tmp_path)
@@ -318,9 +321,26 @@ def test_through_a_dvc_remote_the_workers_share_no_cache_and_the_workspace_resto
     assert result.returncode == 0, result.stdout + result.stderr
     assert "4 entries (4 ran on workers, 0 restored)" in result.stdout, result.stdout
     assert "the workspace's dvc repro executed 0 stage(s)" in result.stdout, result.stdout
-    assert (work / "copy2.txt").read_text() == "SO" and (work / "upper.txt").read_text() == "SOURCE\n"
+    assert (work / "copy2.txt").read_text() == "SO" and (work / "upper.txt").read_text() == "SOURCE\na\n"
     assert list((remote / "runs").rglob("*")), "no run-cache record reached the remote"
     assert json.loads(_git_run(["dvc", "status", "--json"], work) or "{}") == {}
+
+    # a sweep the same way: the combinations' commits go to the bare repository for the workers to fetch
+    _git_run(["git", "add", "dvc.lock"], work)
+    _git_run(["git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "lock"], work)
+    _git_run(["git", "push", "-q", str(origin), "HEAD:refs/heads/main"], work)
+    sweep = ["mop-cluster", "exp", "run", "-S", "suffix=b,c", "--workers", "2", "--git-url", str(origin),
+             "--dvc-remote"]
+    result = subprocess.run(sweep, cwd=work, capture_output=True, text=True, env=os.environ | CLUSTER_ENV,
+                            timeout=600)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "2 experiment(s) (6 entries ran on workers" in result.stdout, result.stdout
+    assert result.stdout.count("dvc exp run executed 0 stage(s)") == 2, result.stdout
+    shown = json.loads(_git_run(["dvc", "exp", "show", "--json"], work))
+    suffixes = {rev["data"]["params"]["params.yaml"]["data"]["suffix"]
+                for base in shown for experiment in base.get("experiments") or [] for rev in experiment["revs"]}
+    assert suffixes == {"b", "c"}
+    assert (work / "upper.txt").read_text() == "SOURCE\na\n"  # the workspace as it was
 
 
 def test_remote_mode_refuses_an_unpushed_head_and_an_uncommitted_remote_before_any_compute(tmp_path):
