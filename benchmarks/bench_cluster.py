@@ -4,7 +4,8 @@
    ``dvc repro``, one by ``mop-cluster repro --workers W``, on this machine; wall times, their ratio, and
    the cluster's overhead per entry (a task's seconds outside its ``dvc repro``: clone, cache set-up,
    clean-up) and Ray's start. The workers' entries run at the tiny profile's threads (1 or 2).
-2. The makespan of the quick study (measured: record/'s timing records) and of the thesis profile
+2. The makespan of the quick study (measured: record/'s timing records), of the evidence profile (measured:
+   record/evidence/'s) and of the thesis profile
    (estimated: mop_core.plan's stage hours at benchmarks/gpu/rates.json, the H200's rates at the thesis's
    network sizes, split evenly over each stage's entries) on 1, 4, 16, 64 workers (mop_cluster.makespan).
 
@@ -28,7 +29,13 @@ sys.path.insert(0, str(ROOT / "scripts"))
 from bad_inputs import committed_project  # noqa: E402
 
 from mop_cluster.dag import stage_graph  # noqa: E402
-from mop_cluster.makespan import estimated_seconds, measured_seconds, profile_graph, table  # noqa: E402
+from mop_cluster.makespan import (  # noqa: E402
+    estimated_seconds,
+    measured_seconds,
+    profile_graph,
+    table,
+    unrecorded,
+)
 
 WORKERS = [1, 4, 16, 64]
 
@@ -59,6 +66,12 @@ def measure(workers: int) -> None:
 def makespans() -> None:
     print("\nquick study (params.yaml), seconds measured by record/'s run:\n")
     print(table(stage_graph(ROOT), measured_seconds(ROOT / "record", stage_graph(ROOT)), WORKERS))
+    evidence, record = ROOT / "profiles" / "evidence.yaml", ROOT / "record" / "evidence"
+    graph = profile_graph(evidence)
+    missing = unrecorded(record, graph)
+    print(f"\nevidence profile, {len(graph.upstream)} entries, seconds measured by record/evidence/'s run on 2 cores"
+          + (f" ({len(missing)} entries it did not reach count 0: a partial run)" if missing else "") + ":\n")
+    print(table(graph, measured_seconds(record, graph), WORKERS))
     rates = ROOT / "benchmarks" / "gpu" / "rates.json"
     for name in ("thesis",):
         profile = ROOT / "profiles" / f"{name}.yaml"

@@ -89,6 +89,14 @@ def measured_seconds(record: Path, graph: StageGraph) -> dict[str, float]:
     return seconds
 
 
+def unrecorded(record: Path, graph: StageGraph) -> list[str]:
+    """The entries of ``graph`` that ``record``/dvc.lock lacks: a partial run (they count 0 seconds)."""
+    import yaml
+
+    lock = yaml.safe_load((record / "dvc.lock").read_text())["stages"]
+    return [name for name in graph.upstream if name not in lock]
+
+
 def profile_graph(profile: Path) -> StageGraph:
     """The DAG dvc.yaml expands under ``profile`` (its matrix entries), read in a scratch DVC project."""
     with tempfile.TemporaryDirectory() as scratch:
@@ -124,16 +132,21 @@ def table(graph: StageGraph, seconds: dict[str, float], workers: list[int]) -> s
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--record", type=Path, help="a run's dvc.lock and results/timings, e.g. record/ "
-                                                    "(measured seconds; the DAG of this checkout's params.yaml)")
-    parser.add_argument("--profile", type=Path, help="a params file whose DAG and estimated seconds to use")
+                                                    "(measured seconds; the DAG of --profile, default this "
+                                                    "checkout's params.yaml)")
+    parser.add_argument("--profile", type=Path, help="a params file whose DAG to use (and, with --rates, whose "
+                                                     "estimated seconds)")
     parser.add_argument("--rates", type=Path, help="with --profile: a JSON of benchmarks/bench_rates.py")
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 4, 16, 64])
     args = parser.parse_args(argv)
-    if bool(args.record) == bool(args.profile) or (args.profile and not args.rates):
-        parser.error("give --record DIR, or --profile FILE with --rates FILE")
+    if bool(args.record) == bool(args.rates) or (args.rates and not args.profile):
+        parser.error("give --record DIR [--profile FILE], or --profile FILE with --rates FILE")
     if args.record:
-        graph = stage_graph(ROOT)
+        graph = profile_graph(args.profile) if args.profile else stage_graph(ROOT)
         seconds, how = measured_seconds(args.record, graph), f"measured ({args.record})"
+        missing = unrecorded(args.record, graph)
+        if missing:
+            how += f"; {len(missing)} entries not in its dvc.lock count 0 (a partial run): {', '.join(missing)}"
     else:
         graph = profile_graph(args.profile)
         seconds, how = estimated_seconds(args.profile, args.rates, graph), f"estimated ({args.rates})"

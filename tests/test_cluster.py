@@ -96,6 +96,21 @@ def test_the_makespan_lies_between_the_critical_path_and_the_serial_time():
     assert two.utilisation == 85.0 / (2 * 55.0)
 
 
+def test_a_partial_records_unreached_entries_are_named_and_count_zero(tmp_path):
+    import json as json_
+
+    from mop_cluster.makespan import measured_seconds, unrecorded
+
+    graph = StageGraph({"collect": (), "t@1": ("collect",), "eval": ("t@1",)})
+    timing = tmp_path / "results" / "timings" / "collect.json"
+    timing.parent.mkdir(parents=True)
+    timing.write_text(json_.dumps({"seconds": 12.5}))
+    (tmp_path / "dvc.lock").write_text(yaml.safe_dump({"stages": {"collect": {"outs": [
+        {"path": "results/timings/collect.json", "md5": "x"}]}, "t@1": {"outs": []}}}))
+    assert unrecorded(tmp_path, graph) == ["eval"]
+    assert measured_seconds(tmp_path, graph) == {"collect": 12.5, "t@1": 0, "eval": 0}
+
+
 def test_plan_prints_the_makespan_of_a_profiles_dag(capsys):
     from mop_core.plan import main as plan
 
