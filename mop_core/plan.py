@@ -1,6 +1,6 @@
 """What a profile costs: its schedules times measured rates, per stage, in hours on one machine.
 
-    python -m mop_core.plan profiles/thesis.yaml --rates benchmarks/rates/<device>.json
+    python -m mop_core.plan profiles/thesis.yaml --rates benchmarks/gpu/rates.json   # rates: bench_rates.py
     python -m mop_core.plan profiles/thesis.yaml --scale 0.001 --out short.yaml   # a shortened copy
 
 The rates file is what ``benchmarks/bench_rates.py`` measured on a device at that profile's sizes

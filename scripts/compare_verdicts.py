@@ -2,6 +2,9 @@
 
     python scripts/compare_verdicts.py record record/evidence     # or any two study roots after `dvc repro`
 
+Each run must have reached its report stage (record/evidence/ holds a verdict table only once the
+evidence run has).
+
 Reads each run's ``results/verdicts.json`` (the report stage's record: mop_core/report/verdict_section.py) and
 prints a markdown table: per finding, each run's verdict and its first cell (effect [95% CI], n and unit),
 then the verdict counts. A finding only one run decides shows ``-`` for the other.

@@ -3,7 +3,7 @@
     python scripts/record.py             # after `dvc repro` of the quick profile (params.yaml)
     python scripts/record.py --dest record/evidence   # after `dvc repro` of profiles/evidence.yaml
 
-Every stage output is DVC-cached (so that the run cache can share any stage: see README, "DVC"),
+Every stage output is DVC-cached (so that the run cache can share any stage: docs/design.md),
 which keeps results/ out of git. The record is how a run's results reach a reader of the repository:
 every output under results/ that dvc.lock lists, copied to record/results/ with the same relative
 paths (the report's figure links keep working), and dvc.lock itself as record/dvc.lock; the day's speed

@@ -8,7 +8,7 @@ mop_core.study_params refuses with the unknown keys and the settings that would 
 Every stage of dvc.yaml depends on this stage's output, whose content never changes while the
 params are valid: a valid edit reruns only the stages whose own params changed, and an invalid one
 stops ``dvc repro`` here, with one line naming the key, before DVC deletes any other stage's
-outputs (including ``cache: false`` metrics that only git could restore).
+outputs.
 """
 
 from __future__ import annotations

@@ -4,7 +4,8 @@
 
 All tasks run in parallel, one single-threaded process per task (``collect.parallel``).
 Outputs: data/behaviour/<task>/{medium,expert}.pt, data/datasets/<task>-<level>.hdf5,
-results/collect/datasets/<task>-<level>.json (dvc metrics), results/collect/curves/<task>.tsv
+results/collect/datasets/<task>-<level>.json (readable with `dvc metrics show <path>`),
+results/collect/curves/<task>.tsv
 (dvc plots), results/collect/metrics.json (snapshot returns, the uniformly random policy's return
 R_random of the normalised scores) and results/timings/collect.json (seconds per task, the machine).
 """

@@ -9,7 +9,7 @@ deterministic teacher on every other task's reward (thesis 6.4.5). Returns also 
 IQM and probabilities of improvement on them (mop_core/eval_study.py). A data_sharing substitute task
 (stand_still) has no collect run: its R_random is measured here, with as many random episodes.
 
-Writes results/eval/metrics.json (for `dvc metrics show/diff`), results/eval/returns.tsv (one row
+Writes results/eval/metrics.json (readable with `dvc metrics show <path>`), results/eval/returns.tsv (one row
 per policy group and task, for `dvc plots`), results/eval/returns.json (every episode's return),
 the bar chart results/eval/returns.png and the students' learning curves
 results/eval/student_curves.png.

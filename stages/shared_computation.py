@@ -8,7 +8,7 @@ compared across task ids: per state (Kendall's tau-a and tau-b, mean +- sd over 
 averages and by linear CKA, next to an untrained copy of each group's first student
 (mop_core/shared_study.py). Writes
 - results/shared_computation/metrics.json: Table 6.1 per (loss, pairing) group (mean over the
-  group's seeds) and per student (dvc metrics);
+  group's seeds) and per student (readable with `dvc metrics show <path>`);
 - results/shared_computation/students/<student>.json: everything measured, incl. the mean activations;
 - results/shared_computation/figures/<student>.png: the sorted mean activations (Figure 6.3b);
 - results/shared_computation/tau_during_training.png: the per-state tau logged while distilling

@@ -116,7 +116,7 @@ def test_mixed_pairings_keep_their_spelling():
     study = StudyConfig(tasks=("stand", "walk"), levels=("expert", "medium"))
     assert pairing_levels("expert+medium", study) == ("expert", "medium")
     assert pairing_levels("expert", study) == ("expert", "expert")
-    with pytest.raises(ConfigError, match=r"^--pairing: expected 'expert' \(a pairing of one level"):
+    with pytest.raises(ConfigError, match=r"^distill.pairings: expected 'expert' \(a pairing of one level"):
         pairing_levels("expert+expert", study)
     assert pairing_levels("medium", StudyConfig(tasks=("stand",), levels=("medium",))) == ("medium",)
 

@@ -20,7 +20,8 @@ with alpha fixed at ``entropy_weight`` or, with ``target_entropy`` set, tuned as
 minimising ``log alpha * (H - target_entropy)``). Both target networks move by Polyak averaging after every critic
 step, as in the reference code.
 
-Where this differs from the thesis's reference code (DESIGN.md section 5): the bootstrap reads the
+Where this differs from the thesis's reference code (the design card's section 5, the reference
+implementation's defects): the bootstrap reads the
 *target* critics (the reference read the online ones); the ensemble is one vectorised module with
 one optimiser (the reference looped over E critics with E optimisers); the OOD regression target is
 taken from the same forward pass that is trained (the reference recomputed nothing else either, but

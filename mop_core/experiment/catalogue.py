@@ -291,14 +291,15 @@ def build_catalogue(params: Mapping[str, Any]) -> Catalogue:
                                   pairing_levels(pairing, study, "distill.pairings"), grid.teacher_seed)
                      for loss in grid.losses for pairing in grid.pairings for seed in grid.seeds)
     structure_pairing, variants = structure_variants(params)
-    students += tuple(make_structure_student(variant, structure_pairing, seed, study.tasks,
-                                             pairing_levels(structure_pairing, study), grid.teacher_seed)
+    structure_levels = pairing_levels(structure_pairing, study, "common_structure.pairing")
+    students += tuple(make_structure_student(variant, structure_pairing, seed, study.tasks, structure_levels,
+                                             grid.teacher_seed)
                       for variant in variants for seed in grid.seeds)
     shift_pairing, shift = shift_variants(params)
+    shift_levels = pairing_levels(shift_pairing, study, "state_shift.pairing")
     composing = tuple(TeacherRun(task, level, "deterministic", grid.teacher_seed) for task, level in
-                      zip(study.tasks, pairing_levels(shift_pairing, study, "state_shift.pairing"))
-                      ) if shift_grid(params, study).datasets else ()
-    shift_students = tuple(make_student("mse", shift_pairing, seed, study.tasks, pairing_levels(shift_pairing, study),
+                      zip(study.tasks, shift_levels)) if shift_grid(params, study).datasets else ()
+    shift_students = tuple(make_student("mse", shift_pairing, seed, study.tasks, shift_levels,
                                         grid.teacher_seed, variant) for variant in shift for seed in grid.seeds)
     sharing = sharing_grid(params, study)
     relabelled_teachers = tuple(t for level in sharing.levels for t in relabelled_teacher_runs(

@@ -317,7 +317,7 @@ def multitask_grid(params: Mapping[str, Any], study: StudyConfig) -> MultitaskGr
     return grid
 
 
-def parse_pairing(pairing: str, study: StudyConfig, key: str = "--pairing") -> tuple[str, ...]:
+def parse_pairing(pairing: str, study: StudyConfig, key: str = "distill.pairings") -> tuple[str, ...]:
     """The teacher level per study task that ``pairing`` names, however it is spelled (an alias such as
     ``medium+medium`` included: :func:`pairing_levels` refuses it)."""
     levels = tuple(pairing.split("+"))
@@ -331,7 +331,7 @@ def parse_pairing(pairing: str, study: StudyConfig, key: str = "--pairing") -> t
     return levels
 
 
-def pairing_levels(pairing: str, study: StudyConfig, key: str = "--pairing") -> tuple[str, ...]:
+def pairing_levels(pairing: str, study: StudyConfig, key: str = "distill.pairings") -> tuple[str, ...]:
     """The teacher level per study task of a pairing (``medium`` or ``expert+medium``). A pairing is
     spelled one way only: the students' files and every cross-section reference are named by the
     spelling, so one level for every task is written as that level (``medium``, not ``medium+medium``)."""

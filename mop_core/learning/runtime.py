@@ -83,9 +83,11 @@ def keep_freed_memory() -> bool:
     By default glibc maps every allocation above a threshold (128 KiB, raised adaptively) with
     ``mmap`` and unmaps it on ``free``: each new activation or gradient buffer of a training step
     (1-7 MB here) then starts as untouched pages, and the first write to every 4 KiB page is a
-    page fault. Measured on 2 CPU cores: the thesis-size PBRL update ~22% faster and the
-    thesis-size student step ~13% faster with the threshold raised (benchmarks/bench_pbrl.py prints
-    the comparison). The price is that the process keeps its peak heap until it exits. Does
+    page fault. Measured on 2 CPU cores when it was introduced: the thesis-size PBRL update ~22% faster
+    and the thesis-size student step ~13% faster with the threshold raised; the last committed run of
+    benchmarks/bench_pbrl.py (benchmarks/README.md, pbrl) measured the update at 0.84x instead, on a
+    loaded machine: to be measured again on free cores before the setting is trusted either way. The
+    price is that the process keeps its peak heap until it exits. Does
     nothing (returns False) where the C library is not glibc.
     """
     if not sys.platform.startswith("linux"):

@@ -29,7 +29,8 @@ LEVELS = ("expert", "medium", "medium_replay")  # the dataset levels (D4RL's nam
 DATA = Path("data")
 RESULTS = Path("results")
 TIMINGS = RESULTS / "timings"
-# Each stage's metrics file (`dvc metrics show`): their paths are spelled here only, for writers and readers.
+# Each stage's metrics file (readable with `dvc metrics show <path>`; dvc.yaml's metrics: are the timings):
+# their paths are spelled here only, for writers and readers.
 COLLECT_METRICS = RESULTS / "collect" / "metrics.json"  # snapshot returns, R_random per task
 RELABEL_METRICS = RESULTS / "relabel" / "metrics.json"  # per dataset: the physics check's largest error
 COMPOSE_METRICS = RESULTS / "compose" / "metrics.json"  # each composed dataset's composition and returns
