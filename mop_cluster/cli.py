@@ -69,6 +69,10 @@ def main(argv: list[str] | None = None) -> int:
                     auto_cpus=args.auto_threads, git_url=args.git_url, dvc_remote=args.dvc_remote)
     except (ClusterError, EntryFailed, KeyError, ValueError) as exc:
         return _error(str(exc))
+    except KeyboardInterrupt:
+        _error("interrupted: every entry stopped; those that finished are in the run cache, so a rerun "
+               "continues from them")
+        return 130
     ran = sum(result.ran for result in run.results)
     print(f"mop-cluster: {len(run.entries)} entries ({ran} ran on workers, {len(run.results) - ran} restored) "
           f"in {run.seconds:.1f} s; the workspace's dvc repro executed {len(run.final_ran)} stage(s)"
@@ -85,6 +89,9 @@ def _exp_run(args) -> int:
                       auto_cpus=args.auto_threads, git_url=args.git_url, dvc_remote=args.dvc_remote)
     except (ClusterError, EntryFailed, KeyError, ValueError) as exc:
         return _error(str(exc).strip("'\""))
+    except KeyboardInterrupt:
+        _error("interrupted: every entry stopped; those that finished are in the run cache")
+        return 130
     ran = sum(result.ran for result in run.results)
     print(f"mop-cluster: {len(run.experiments)} experiment(s) ({ran} entries ran on workers, "
           f"{len(run.results) - ran} restored) in {run.seconds:.1f} s: "

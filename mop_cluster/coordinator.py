@@ -165,14 +165,22 @@ def run_on_ray(ray, root: Path, jobs: list[Job], sized: dict, address: str | Non
         waiting = list(refs.values())
         names = {ref: name for name, ref in refs.items()}
         return _collect(ray, waiting, names, len(jobs), log)
-    finally:  # also on a failed entry or Ctrl-C: the job's workers die with it, and their reapers take each
-        ray.shutdown()  # entry's dvc repro and stage along (no ray.cancel: Ray 2.60 aborted on it)
+    except BaseException as exc:  # a failed entry or Ctrl-C
+        log(f"mop-cluster: stopping ({type(exc).__name__}): shutting Ray down, which stops every entry")
+        start = time.perf_counter()
+        ray.shutdown()
+        log(f"mop-cluster: Ray shut down in {time.perf_counter() - start:.1f} s")
+        raise
+    finally:  # the job's workers die with it, and their reapers take each entry's dvc repro and stage along
+        ray.shutdown()  # (no ray.cancel: Ray 2.60 aborted on it); a no-op when already shut down
 
 
 def _collect(ray, waiting, names, total: int, log) -> list[EntryResult]:
     results = []
     while waiting:
-        ready, waiting = ray.wait(waiting, num_returns=1)
+        ready, waiting = ray.wait(waiting, num_returns=1, timeout=1.0)  # short waits: Ctrl-C lands between
+        if not ready:
+            continue
         try:
             result = ray.get(ready[0])
         except Exception as exc:  # the entry's EntryFailed, or a worker lost beyond its retries

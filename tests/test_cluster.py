@@ -230,8 +230,8 @@ def test_ctrl_c_stops_every_worker_and_leaves_no_process_behind(tmp_path):
         assert coordinator.poll() is None and time.time() < deadline, coordinator.communicate()[0]
         time.sleep(0.5)
     coordinator.send_signal(signal.SIGINT)
-    out, _ = coordinator.communicate(timeout=120)
-    assert coordinator.returncode != 0, out
+    out, _ = coordinator.communicate(timeout=300)  # ~2 s on idle cores; Ray's shutdown is slow on loaded ones
+    assert coordinator.returncode == 130 and "error: interrupted: every entry stopped" in out, out
     time.sleep(2)
     assert _processes_under(scratch) == [], out
     assert not (study / ".dvc" / "tmp" / "mop-cluster.pid").exists()  # the next coordinator may start

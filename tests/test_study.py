@@ -56,7 +56,8 @@ def test_pairing_levels_gives_one_level_per_study_task():
 
 
 def test_a_bad_pairing_names_its_key():
-    with _raises("distill.pairings: expected one level or one per study task (2) joined by '+', got 'expert+medium+expert'"):
+    with _raises("distill.pairings: expected one level or one per study task (2) joined by '+', "
+                 "got 'expert+medium+expert'"):
         pairing_levels("expert+medium+expert", STUDY)
     with _raises("distill.pairings: expected levels among study.levels ['expert', 'medium'], got 'medium_replay'"):
         pairing_levels("medium_replay", STUDY, "distill.pairings")
