@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from pathlib import Path
 
@@ -50,6 +51,20 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
+def _stop_on_signals() -> None:
+    """SIGTERM (Slurm's scancel, Kubernetes, kill) stops the run as Ctrl-C does: Ray shut down, every entry's
+    processes killed. Without this Python dies at once, Ray's workers die without their shutdown, and the
+    entries' dvc repro live on (measured: a quick-study run stopped by SIGTERM left two `dvc repro` and their
+    stages running). Once Ray runs, its own SIGTERM handler exits instead (SystemExit): the same path. SIGINT
+    gets its handler back even when a shell started this in the background with SIGINT ignored."""
+    signal.signal(signal.SIGTERM, _interrupt)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     if args.workers is not None and args.workers < 1:
@@ -62,6 +77,7 @@ def main(argv: list[str] | None = None) -> int:
         import ray  # noqa: F401
     except ImportError:
         return _error(f"mop-cluster needs Ray, which is not installed: {INSTALL}")
+    _stop_on_signals()
     if args.command == "exp":
         return _exp_run(args)
     try:
@@ -69,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
                     auto_cpus=args.auto_threads, git_url=args.git_url, dvc_remote=args.dvc_remote)
     except (ClusterError, EntryFailed, KeyError, ValueError) as exc:
         return _error(str(exc))
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemExit):  # Ctrl-C; SIGTERM (Ray's handler, once Ray runs, exits)
         _error("interrupted: every entry stopped; those that finished are in the run cache, so a rerun "
                "continues from them")
         return 130
@@ -89,7 +105,7 @@ def _exp_run(args) -> int:
                       auto_cpus=args.auto_threads, git_url=args.git_url, dvc_remote=args.dvc_remote)
     except (ClusterError, EntryFailed, KeyError, ValueError) as exc:
         return _error(str(exc).strip("'\""))
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemExit):  # Ctrl-C; SIGTERM (Ray's handler, once Ray runs, exits)
         _error("interrupted: every entry stopped; those that finished are in the run cache")
         return 130
     ran = sum(result.ran for result in run.results)

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from .dag import stage_graph, stale_entries
 from .resources import entry_resources
-from .worker import EntryResult, Sharing, run_after, stages_ran
+from .worker import EntryResult, Sharing, drop_lock_entries, run_after, stages_ran
 
 LOCK = Path(".dvc/tmp/mop-cluster.pid")
 SCRATCH = Path(".dvc/tmp/mop-cluster")  # the workers' clones
@@ -114,10 +114,11 @@ def repro(root: Path, address: str | None = None, workers: int | None = None, gp
         if entries:
             if shared.remote:  # the up-to-date entries' outputs, which the workers' entries read
                 subprocess.run(["dvc", "push", "-q"], cwd=root, capture_output=True, text=True)
-            jobs = [Job(entry, commit, entry, tuple(u for u in graph.upstream[entry] if u in entries))
-                    for entry in entries]
+            jobs = [Job(entry, commit, entry, tuple(u for u in graph.upstream[entry] if u in entries),
+                        tuple(entries)) for entry in entries]
             run.results = run_on_ray(ray, root, jobs, sized, address, workers, gpus_per_run, retries,
                                      scratch or root / SCRATCH, log, shared)
+            drop_lock_entries(root / "dvc.lock", entries)  # stale: the closing repro restores each from the run cache
         final = subprocess.run(["dvc", "repro", *(["--pull"] if shared.remote else [])], cwd=root,
                                capture_output=True, text=True)
         if final.returncode != 0:
@@ -135,6 +136,7 @@ class Job:
     commit: str
     entry: str
     upstream: tuple[str, ...] = ()
+    stale: tuple[str, ...] = ()  # the entries this run executes: dropped from the clone's dvc.lock
 
 
 def run_on_ray(ray, root: Path, jobs: list[Job], sized: dict, address: str | None, workers: int | None,
@@ -161,7 +163,8 @@ def run_on_ray(ray, root: Path, jobs: list[Job], sized: dict, address: str | Non
             resources = sized[job.key]
             options = task.options(num_cpus=resources.cpus, num_gpus=resources.gpus, max_retries=retries,
                                    name=job.key)
-            refs[job.key] = options.remote(shared, job.commit, job.entry, str(scratch), resources.cpus, *ups)
+            refs[job.key] = options.remote(shared, job.commit, job.entry, str(scratch), resources.cpus, job.stale,
+                                            *ups)
         waiting = list(refs.values())
         names = {ref: name for name, ref in refs.items()}
         return _collect(ray, waiting, names, len(jobs), log)

@@ -204,7 +204,7 @@ def exp_run(root: Path, specs: list[str], address: str | None = None, workers: i
             for entry in experiment.entries:
                 key = f"{entry} ({experiment.label})"
                 ups = tuple(f"{u} ({experiment.label})" for u in experiment.upstream[entry] if u in experiment.entries)
-                jobs.append(Job(key, experiment.commit, entry, ups))
+                jobs.append(Job(key, experiment.commit, entry, ups, tuple(experiment.entries)))
                 sized[key] = resources[entry]
         log(f"mop-cluster: {len(experiments)} experiment(s), {len(jobs)} entries to run: "
             + "; ".join(f"{e.label} ({len(e.entries)})" for e in experiments))

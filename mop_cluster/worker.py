@@ -17,8 +17,11 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+
+import yaml
 
 RAN = "Running stage '"
 # fault injection for the tests: the first attempt at this entry dies as a killed node would
@@ -94,6 +97,27 @@ def _clone(sharing: Sharing, commit: str, clone: Path) -> None:
                        capture_output=True)
 
 
+def drop_lock_entries(lock: Path, stages: Iterable[str]) -> None:
+    """Remove ``stages``' entries from the dvc.lock at ``lock`` (atomically; no file: nothing to do).
+
+    A lock entry whose dependencies match makes DVC trust its output hashes and never ask the run cache
+    (dvc/stage/cache.py, ``restore``): when those outputs are not in this cache (a record made on another
+    machine, timings that differ from run to run) DVC runs the stage again. The entries this cluster run
+    executes are stale by construction; without them DVC restores each from the run cache."""
+    if not lock.exists():
+        return
+    data = yaml.safe_load(lock.read_text()) or {}
+    entries = data.get("stages") or {}
+    stale = [stage for stage in stages if stage in entries]
+    if not stale:
+        return
+    for stage in stale:
+        del entries[stage]
+    tmp = lock.with_name(f".{lock.name}.tmp")
+    tmp.write_text(yaml.safe_dump(data, sort_keys=False))
+    tmp.replace(lock)
+
+
 def _dvc(args: list[str], clone: Path, env: dict, entry: str, scratch: Path, may_die: bool = False) -> str:
     """``dvc args`` under the reaper (it dies with this process); the log, or EntryFailed with its tail."""
     reaper = [sys.executable, "-m", "mop_cluster.reaper", str(os.getpid())]
@@ -107,15 +131,19 @@ def _dvc(args: list[str], clone: Path, env: dict, entry: str, scratch: Path, may
     return log
 
 
-def run_entry(sharing: Sharing, commit: str, entry: str, scratch: str, cpus: int = 1) -> EntryResult:
+def run_entry(sharing: Sharing, commit: str, entry: str, scratch: str, cpus: int = 1,
+              stale: tuple[str, ...] = ()) -> EntryResult:
     """``dvc repro entry`` in a fresh clone of ``sharing.source`` at ``commit``, told the ``cpus`` Ray gave it
     (``MOP_THREADS``: what a ``threads: auto`` param resolves to there). Through a remote, the clone pulls
-    what it reads (``dvc repro --pull``) and pushes the entry's outputs and the run-cache records."""
+    what it reads (``dvc repro --pull``) and pushes the entry's outputs and the run-cache records. The
+    clone's dvc.lock loses the ``stale`` entries (the run's), so that its upstream entries, which other
+    clones ran, are restored from the run cache instead of run again (:func:`drop_lock_entries`)."""
     start = time.perf_counter()
     Path(scratch).mkdir(parents=True, exist_ok=True)
     clone = Path(tempfile.mkdtemp(prefix=f"{entry.replace('@', '_')}-", dir=scratch))
     try:
         _clone(sharing, commit, clone)
+        drop_lock_entries(clone / "dvc.lock", stale)
         env = os.environ | {"MOP_PROGRESS": "0", "MOP_THREADS": str(cpus)}
         dvc_start = time.perf_counter()
         pull = ["--pull"] if sharing.remote else []
@@ -129,8 +157,8 @@ def run_entry(sharing: Sharing, commit: str, entry: str, scratch: str, cpus: int
         shutil.rmtree(clone, ignore_errors=True)
 
 
-def run_after(sharing: Sharing, commit: str, entry: str, scratch: str, cpus: int,
+def run_after(sharing: Sharing, commit: str, entry: str, scratch: str, cpus: int, stale: tuple[str, ...],
               *upstream: EntryResult) -> EntryResult:
     """The Ray task: ``upstream`` are the results of the entries ``entry`` reads from (Ray passes them
     once they exist, so an entry starts only after its inputs are in the run cache)."""
-    return run_entry(sharing, commit, entry, scratch, cpus)
+    return run_entry(sharing, commit, entry, scratch, cpus, stale)

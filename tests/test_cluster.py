@@ -216,7 +216,9 @@ def _processes_under(path: Path) -> list[str]:
 
 
 @pytest.mark.slow
-def test_ctrl_c_stops_every_worker_and_leaves_no_process_behind(tmp_path):
+@pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
+def test_ctrl_c_stops_every_worker_and_leaves_no_process_behind(tmp_path, signame):
+    """Ctrl-C, and SIGTERM (a scheduler's cancel) the same way."""
     import signal
     import subprocess
     import time
@@ -229,7 +231,7 @@ def test_ctrl_c_stops_every_worker_and_leaves_no_process_behind(tmp_path):
     while not any("stages/" in cmd for cmd in _processes_under(scratch)):  # a worker's stage command runs
         assert coordinator.poll() is None and time.time() < deadline, coordinator.communicate()[0]
         time.sleep(0.5)
-    coordinator.send_signal(signal.SIGINT)
+    coordinator.send_signal(getattr(signal, signame))
     out, _ = coordinator.communicate(timeout=300)  # ~2 s on idle cores; Ray's shutdown is slow on loaded ones
     assert coordinator.returncode == 130 and "error: interrupted: every entry stopped" in out, out
     time.sleep(2)
@@ -371,3 +373,54 @@ def test_remote_mode_refuses_an_unpushed_head_and_an_uncommitted_remote_before_a
     with pytest.raises(ClusterError, match="default: mine, committed: store"):
         sharing(work, "0" * 40, None, dvc_remote=True)
     assert sharing(work, "0" * 40).cache_dir == str(work / ".dvc" / "cache")
+
+
+def test_dropping_lock_entries_keeps_the_others_and_ignores_a_missing_lock(tmp_path):
+    from mop_cluster.worker import drop_lock_entries
+
+    lock = tmp_path / "dvc.lock"
+    drop_lock_entries(lock, ["a"])  # no lock: nothing to do
+    assert not lock.exists()
+    lock.write_text(yaml.safe_dump({"schema": "2.0", "stages": {"a": {"cmd": "x"}, "b@1": {"cmd": "y"}}}))
+    drop_lock_entries(lock, ["b@1", "not-there"])
+    assert yaml.safe_load(lock.read_text()) == {"schema": "2.0", "stages": {"a": {"cmd": "x"}}}
+
+
+@pytest.mark.slow
+def test_a_committed_lock_from_another_run_does_not_make_workers_run_upstream_again(tmp_path):
+    """A fresh clone whose committed dvc.lock records outputs its cache lacks (a record made elsewhere; here
+    a timestamp that differs on every run): DVC trusts a lock entry whose dependencies match and never asks
+    the run cache, so each worker ran its upstream again and the workspace's closing dvc repro ran all.
+    Each stage's command must run once, on a worker, and the closing dvc repro execute nothing."""
+    import subprocess
+
+    counter, first, clone = tmp_path / "runs.txt", tmp_path / "first", tmp_path / "clone"
+    first.mkdir()
+    for command in (["git", "init", "-q"], ["dvc", "init", "-q"]):
+        _git_run(command, first)
+    (first / "dvc.yaml").write_text(f"""stages:
+  source:
+    cmd: echo source >> {counter} && date +%s%N > source.txt
+    deps: [seed.txt]
+    outs: [source.txt]
+  copy:
+    matrix:
+      n: [1, 2]
+    cmd: echo copy >> {counter} && cp source.txt copy${{item.n}}.txt
+    deps: [source.txt]
+    outs: ["copy${{item.n}}.txt"]
+""")
+    (first / "seed.txt").write_text("seed\n")
+    (first / ".gitignore").write_text("/source.txt\n/copy1.txt\n/copy2.txt\n")
+    _git_run(["dvc", "repro", "-q"], first)
+    _git_run(["git", "add", "-A"], first)
+    _git_run(["git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "a record"], first)
+    _git_run(["git", "clone", "-q", str(first), str(clone)], tmp_path)
+    counter.unlink()
+    result = subprocess.run(["mop-cluster", "repro", "--workers", "2"], cwd=clone, capture_output=True, text=True,
+                            env=os.environ | CLUSTER_ENV, timeout=600)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "the workspace's dvc repro executed 0 stage(s)" in result.stdout, result.stdout
+    assert sorted(counter.read_text().split()) == ["copy", "copy", "source"]
+    assert (clone / "copy1.txt").read_text() == (clone / "source.txt").read_text()
+    assert json.loads(_git_run(["dvc", "status", "--json"], clone) or "{}") == {}
