@@ -32,6 +32,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from speed_probe import probe, summary  # noqa: E402
 
+from mop_cluster.worker import drop_lock_entries  # noqa: E402
 from mop_core.storage.timings import stage_time_table  # noqa: E402
 
 PROBE = "speed_probe.json"
@@ -117,12 +118,7 @@ def prune_lock(root: Path) -> list[str]:
         return []
     lock = yaml.safe_load(lock_path.read_text())
     stale = sorted(set(lock.get("stages", {})) - pipeline_stages(root))
-    if stale:
-        for name in stale:
-            del lock["stages"][name]
-        staged = lock_path.with_name(".dvc.lock.tmp")
-        staged.write_text(yaml.safe_dump(lock, sort_keys=False))
-        staged.replace(lock_path)
+    drop_lock_entries(lock_path, stale)
     return stale
 
 
