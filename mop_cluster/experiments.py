@@ -4,13 +4,16 @@ Per combination of the ``-S`` values (several ``-S`` make a grid, as ``dvc exp r
 1. a commit on top of HEAD whose params.yaml holds the values (git plumbing: the workspace, its index
    and its branches are not touched; a ref ``refs/mop-cluster/<commit>`` keeps it from git's gc);
 2. the entries it makes stale: those whose params in HEAD's dvc.lock differ from the commit's params.yaml,
-   those the lock lacks (a value that adds matrix entries) and the workspace's own stale ones, with
-   everything downstream of them;
+   those the lock lacks (a value that adds matrix entries), and everything downstream of them (its
+   ``own`` entries); and the workspace's stale ones, which no value changes: those are the same in every
+   combination and run once, at HEAD, for all of them;
 3. every combination's entries go to Ray at once, each in a clone at its combination's commit sharing the
    DVC cache (the ``repro`` workers);
-4. then, one combination at a time, ``dvc exp run --temp -S ...`` in the workspace: DVC restores every
-   stage from the run cache and records a real experiment (``dvc exp show``, ``exp push``, ``exp apply``).
-   The workspace's files stay as they were.
+4. then, one combination at a time, ``dvc exp run --temp -S ...`` in the workspace, whose dvc.lock lacks
+   the run's entries meanwhile (:func:`~mop_cluster.worker.drop_lock_entries`: a matching lock entry whose
+   outputs this cache lacks would make DVC run it again): DVC restores every stage from the run cache and
+   records a real experiment (``dvc exp show``, ``exp push``, ``exp apply``). The workspace's files,
+   dvc.lock included, stay as they were.
 """
 
 from __future__ import annotations
@@ -24,17 +27,19 @@ from pathlib import Path
 import yaml
 
 from .dag import StageGraph, stage_graph, stale_entries
-from .worker import stages_ran
+from .worker import drop_lock_entries, stages_ran
 
 
 @dataclass(frozen=True)
 class Experiment:
-    """One combination of values: ``key=value`` strings as given, and the commit that holds them."""
+    """One combination of values: ``key=value`` strings as given, the commit that holds them, the entries
+    it needs run (DAG order) and of those its ``own``: the ones its values change (the others are HEAD's)."""
 
     sets: tuple[str, ...]
     commit: str = ""
     entries: tuple[str, ...] = ()
     upstream: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    own: tuple[str, ...] = ()
 
     @property
     def label(self) -> str:
@@ -123,10 +128,11 @@ def plan_experiment(root: Path, commit: str, sets: tuple[str, ...], workspace_st
         _git(["clone", "-q", "--shared", "--no-checkout", str(root), str(clone)], scratch)
         _git(["checkout", "-q", commit], clone)
         graph: StageGraph = stage_graph(clone)
-        stale = (_params_changed(clone) | workspace_stale) & set(graph.upstream)
-        closure = graph.downstream_closure(stale)
-        entries = tuple(name for name in graph.order() if name in closure)
-    return Experiment(sets, commit, entries, graph.upstream)
+        own = graph.downstream_closure(_params_changed(clone) & set(graph.upstream))
+        closure = own | graph.downstream_closure(workspace_stale & set(graph.upstream))
+        order = graph.order()
+    return Experiment(sets, commit, tuple(name for name in order if name in closure), graph.upstream,
+                      tuple(name for name in order if name in own))
 
 
 def plan_experiments(root: Path, head: str, specs: list[str], scratch: Path) -> list[Experiment]:
@@ -137,6 +143,28 @@ def plan_experiments(root: Path, head: str, specs: list[str], scratch: Path) -> 
         commit = experiment_commit(root, head, sets)
         experiments.append(plan_experiment(root, commit, sets, workspace_stale, scratch))
     return experiments
+
+
+def experiment_jobs(head: str, experiments: list[Experiment]) -> list:
+    """The Ray jobs of ``experiments``, upstream first: an entry that no value changes is one job at ``head``
+    for every combination (keyed by its name), the others one per combination (``entry (label)``). Each
+    clone's dvc.lock loses every entry the run executes."""
+    from .coordinator import Job
+
+    shared = {name: e.upstream[name] for e in experiments for name in e.entries if name not in e.own}
+    stale = tuple(dict.fromkeys(name for e in experiments for name in e.entries))
+    jobs = [Job(name, head, name, tuple(u for u in ups if u in shared), stale) for name, ups in shared.items()]
+    for e in experiments:
+        for entry in e.own:
+            ups = tuple(f"{u} ({e.label})" if u in e.own else u for u in e.upstream[entry] if u in e.entries)
+            jobs.append(Job(f"{entry} ({e.label})", e.commit, entry, ups, stale))
+    return jobs
+
+
+def _restore(path: Path, content: bytes) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_bytes(content)
+    tmp.replace(path)
 
 
 @dataclass(frozen=True)
@@ -183,7 +211,7 @@ def exp_run(root: Path, specs: list[str], address: str | None = None, workers: i
 
     import ray
 
-    from .coordinator import SCRATCH, ClusterError, Job, _check_committed, coordinator_lock, run_on_ray, sharing
+    from .coordinator import SCRATCH, ClusterError, _check_committed, coordinator_lock, run_on_ray, sharing
     from .resources import entry_resources
 
     root = root.resolve()
@@ -196,31 +224,37 @@ def exp_run(root: Path, specs: list[str], address: str | None = None, workers: i
             for experiment in experiments:
                 ref = f"refs/mop-cluster/{experiment.commit}"
                 _git(["push", "-q", git_url, f"{experiment.commit}:{ref}"], root)
-        jobs, sized = [], {}
-        for experiment in experiments:
-            params = yaml.safe_load(_git(["show", f"{experiment.commit}:params.yaml"], root))
-            resources = entry_resources(list(experiment.entries), Path(f"params.yaml ({experiment.label})"),
-                                        gpus_per_run, params, auto_cpus)
-            for entry in experiment.entries:
-                key = f"{entry} ({experiment.label})"
-                ups = tuple(f"{u} ({experiment.label})" for u in experiment.upstream[entry] if u in experiment.entries)
-                jobs.append(Job(key, experiment.commit, entry, ups, tuple(experiment.entries)))
-                sized[key] = resources[entry]
-        log(f"mop-cluster: {len(experiments)} experiment(s), {len(jobs)} entries to run: "
-            + "; ".join(f"{e.label} ({len(e.entries)})" for e in experiments))
+        jobs = experiment_jobs(head, experiments)
+        sized = {}
+        for commit, label in [(head, "HEAD")] + [(e.commit, e.label) for e in experiments]:
+            mine = [job for job in jobs if job.commit == commit]
+            params = yaml.safe_load(_git(["show", f"{commit}:params.yaml"], root)) if mine else {}
+            resources = entry_resources([job.entry for job in mine], Path(f"params.yaml ({label})"), gpus_per_run,
+                                        params, auto_cpus)
+            sized |= {job.key: resources[job.entry] for job in mine}
+        shared_count = sum(job.commit == head for job in jobs)
+        log(f"mop-cluster: {len(experiments)} experiment(s), {len(jobs)} entries to run: {shared_count} that no "
+            "value changes, once for all; " + "; ".join(f"{e.label} ({len(e.own)})" for e in experiments))
         run = ExperimentsRun(experiments)
         if jobs:
             if shared.remote:  # the up-to-date entries' outputs, which the workers' entries read
                 subprocess.run(["dvc", "push", "-q"], cwd=root, capture_output=True, text=True)
             run.results = run_on_ray(ray, root, jobs, sized, address, workers, gpus_per_run, retries,
                                      root / SCRATCH, log, shared)
-        for experiment in experiments:
-            try:
-                recorded = record_experiment(root, experiment, pull=shared.remote is not None)
-            except RuntimeError as exc:
-                raise ClusterError(str(exc)) from None
-            run.recorded.append(recorded)
-            log(f"mop-cluster: experiment {recorded.name or '?'} ({experiment.label}) recorded; dvc exp run "
-                f"executed {len(recorded.ran)} stage(s)" + (f": {', '.join(recorded.ran)}" if recorded.ran else ""))
+        lock = root / "dvc.lock"
+        kept = lock.read_bytes() if lock.exists() else None
+        drop_lock_entries(lock, [job.entry for job in jobs])  # see the module docstring, step 4
+        try:
+            for experiment in experiments:
+                try:
+                    recorded = record_experiment(root, experiment, pull=shared.remote is not None)
+                except RuntimeError as exc:
+                    raise ClusterError(str(exc)) from None
+                run.recorded.append(recorded)
+                log(f"mop-cluster: experiment {recorded.name or '?'} ({experiment.label}) recorded; dvc exp run "
+                    f"executed {len(recorded.ran)} stage(s)" + (f": {', '.join(recorded.ran)}" if recorded.ran else ""))
+        finally:
+            if kept is not None:
+                _restore(lock, kept)
         run.seconds = time.perf_counter() - start
         return run

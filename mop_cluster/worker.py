@@ -108,7 +108,7 @@ def drop_lock_entries(lock: Path, stages: Iterable[str]) -> None:
         return
     data = yaml.safe_load(lock.read_text()) or {}
     entries = data.get("stages") or {}
-    stale = [stage for stage in stages if stage in entries]
+    stale = [stage for stage in dict.fromkeys(stages) if stage in entries]
     if not stale:
         return
     for stage in stale:

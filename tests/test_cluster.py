@@ -386,14 +386,9 @@ def test_dropping_lock_entries_keeps_the_others_and_ignores_a_missing_lock(tmp_p
     assert yaml.safe_load(lock.read_text()) == {"schema": "2.0", "stages": {"a": {"cmd": "x"}}}
 
 
-@pytest.mark.slow
-def test_a_committed_lock_from_another_run_does_not_make_workers_run_upstream_again(tmp_path):
+def _recorded_elsewhere(tmp_path: Path) -> tuple[Path, Path]:
     """A fresh clone whose committed dvc.lock records outputs its cache lacks (a record made elsewhere; here
-    a timestamp that differs on every run): DVC trusts a lock entry whose dependencies match and never asks
-    the run cache, so each worker ran its upstream again and the workspace's closing dvc repro ran all.
-    Each stage's command must run once, on a worker, and the closing dvc repro execute nothing."""
-    import subprocess
-
+    a timestamp that differs on every run), and the file each command appends its stage's name to."""
     counter, first, clone = tmp_path / "runs.txt", tmp_path / "first", tmp_path / "clone"
     first.mkdir()
     for command in (["git", "init", "-q"], ["dvc", "init", "-q"]):
@@ -406,21 +401,54 @@ def test_a_committed_lock_from_another_run_does_not_make_workers_run_upstream_ag
   copy:
     matrix:
       n: [1, 2]
-    cmd: echo copy >> {counter} && cp source.txt copy${{item.n}}.txt
+    cmd: echo copy >> {counter} && cp source.txt copy${{item.n}}.txt && echo ${{suffix}} >> copy${{item.n}}.txt
     deps: [source.txt]
+    params: [suffix]
     outs: ["copy${{item.n}}.txt"]
 """)
     (first / "seed.txt").write_text("seed\n")
+    (first / "params.yaml").write_text("suffix: a\n")
     (first / ".gitignore").write_text("/source.txt\n/copy1.txt\n/copy2.txt\n")
     _git_run(["dvc", "repro", "-q"], first)
     _git_run(["git", "add", "-A"], first)
     _git_run(["git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "a record"], first)
     _git_run(["git", "clone", "-q", str(first), str(clone)], tmp_path)
     counter.unlink()
+    return clone, counter
+
+
+@pytest.mark.slow
+def test_a_committed_lock_from_another_run_does_not_make_workers_run_upstream_again(tmp_path):
+    """DVC trusts a lock entry whose dependencies match and never asks the run cache, so in a fresh clone of
+    a record made elsewhere each worker ran its upstream again and the workspace's closing dvc repro ran
+    all. Each stage's command must run once, on a worker, and the closing dvc repro execute nothing."""
+    import subprocess
+
+    clone, counter = _recorded_elsewhere(tmp_path)
     result = subprocess.run(["mop-cluster", "repro", "--workers", "2"], cwd=clone, capture_output=True, text=True,
                             env=os.environ | CLUSTER_ENV, timeout=600)
     assert result.returncode == 0, result.stdout + result.stderr
     assert "the workspace's dvc repro executed 0 stage(s)" in result.stdout, result.stdout
     assert sorted(counter.read_text().split()) == ["copy", "copy", "source"]
-    assert (clone / "copy1.txt").read_text() == (clone / "source.txt").read_text()
+    assert (clone / "copy1.txt").read_text() == (clone / "source.txt").read_text() + "a\n"
     assert json.loads(_git_run(["dvc", "status", "--json"], clone) or "{}") == {}
+
+
+@pytest.mark.slow
+def test_a_sweep_in_a_fresh_clone_runs_the_shared_upstream_once_and_dvc_exp_run_restores_all(tmp_path):
+    """mop-cluster exp run in the same fresh clone: the entry no value changes (source) is one job for both
+    experiments, not one per experiment; each dvc exp run restores everything (the committed lock's
+    matching entries would have made it run source again); the workspace's dvc.lock stays as it was."""
+    import subprocess
+
+    clone, counter = _recorded_elsewhere(tmp_path)
+    lock = (clone / "dvc.lock").read_text()
+    sweep = ["mop-cluster", "exp", "run", "-S", "suffix=b,c", "--workers", "2"]
+    result = subprocess.run(sweep, cwd=clone, capture_output=True, text=True, env=os.environ | CLUSTER_ENV,
+                            timeout=600)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "2 experiment(s) (5 entries ran on workers" in result.stdout, result.stdout
+    assert result.stdout.count("dvc exp run executed 0 stage(s)") == 2, result.stdout
+    assert sorted(counter.read_text().split()) == ["copy"] * 4 + ["source"]
+    assert (clone / "dvc.lock").read_text() == lock
+    assert _git_run(["git", "status", "--porcelain", "--untracked-files=no"], clone) == ""
