@@ -52,14 +52,19 @@ def measure(workers: int) -> None:
         out = subprocess.run(["mop-cluster", "repro", "--workers", str(workers)], cwd=cluster, env=env, check=True,
                              capture_output=True, text=True).stdout
         cluster_s = time.perf_counter() - start
-    tasks = [float(line.split(" in ")[1].split(" s ")[0]) for line in out.splitlines()
+    lines = [line for line in out.splitlines()
              if line.startswith("mop-cluster: ") and (" ran in " in line or " restored in " in line)]
+    tasks = [float(line.split(" in ")[1].split(" s ")[0]) for line in lines]
+    dvc = [float(line.split("(dvc repro ")[1].split(" s)")[0]) for line in lines]
     print(f"tiny study, {os.cpu_count()} cores: dvc repro {serial_s:.0f} s; mop-cluster repro --workers {workers} "
           f"{cluster_s:.0f} s (ratio serial / cluster {serial_s / cluster_s:.2f})")
     print(f"{len(tasks)} entries; their tasks took {sum(tasks):.0f} s together against the serial run's "
-          f"{serial_s:.0f} s: {(sum(tasks) - serial_s) / max(len(tasks), 1):.1f} s of overhead per entry (clone, "
-          "dvc start, upstream restored from the cache, clean-up); the rest of the cluster's wall time is Ray's "
-          "start and the workspace's closing dvc repro")
+          f"{serial_s:.0f} s: {(sum(tasks) - serial_s) / max(len(tasks), 1):.1f} s more per entry (clone, dvc start, "
+          "upstream restored from the cache, clean-up, entries sharing the cores); the rest of the cluster's wall "
+          "time is Ray's start and the workspace's closing dvc repro")
+    print(f"outside dvc repro (clone, cache set-up, clean-up): {(sum(tasks) - sum(dvc)) / max(len(tasks), 1):.2f} s "
+          f"per entry; the rest of the difference is dvc repro's own start and two entries sharing {os.cpu_count()} "
+          "cores")
     print([line for line in out.splitlines() if line.startswith("mop-cluster: ")][-1])
 
 

@@ -191,5 +191,5 @@ def _collect(ray, waiting, names, total: int, log) -> list[EntryResult]:
             raise ClusterError(cause if cause.startswith(f"{name}: ") else f"{name}: {cause}") from None
         results.append(result)
         log(f"mop-cluster: {names[ready[0]]} {'ran' if result.ran else 'restored'} in {result.seconds:.1f} s "
-            f"on {result.node} ({len(results)}/{total})")
+            f"(dvc repro {result.dvc_seconds:.1f} s) on {result.node} ({len(results)}/{total})")
     return results
