@@ -91,7 +91,8 @@ def summary(result: dict) -> str:
     """One line for a record: the three rates."""
     return (f"TD3 {result['td3_updates_per_second']:.0f} updates/s (1 thread), PBRL group of {PBRL_GROUP} "
             f"{result['pbrl_group_updates_per_second']:.1f} updates/s (2 threads), rollouts "
-            f"{result['rollout_control_steps_per_second']:.0f} control steps/s (10 walkers, 1 thread)")
+            f"{result['rollout_control_steps_per_second']:.0f} control steps/s (10 walkers, 1 thread)"
+            + (f"; {result['machine']['cpu']}" if result.get("machine", {}).get("cpu") else ""))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -23,12 +23,27 @@ from mop_core.storage.files import write_json
 PIPELINE_ORDER = ("collect", "relabel", "teachers", "multitask", "students", "eval", "shared_computation")
 
 
+def cpu_model() -> str:
+    """The processor's model name (/proc/cpuinfo; elsewhere ``platform.processor()``): two 2-core machines
+    of other models differ ~2x in speed, and their floating-point paths give other datasets from one seed."""
+    import platform
+
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
 def machine_facts(device: str | torch.device = "cpu") -> dict[str, Any]:
-    """What a time depends on besides the work: the device, torch's threads, the cores, the packages
-    (one pip-style string, ``torch==2.13.0 dm-control==1.0.50 ...``: one column in ``dvc metrics show``)."""
+    """What a time depends on besides the work: the device, the processor, torch's threads, the cores, the
+    packages (one pip-style string, ``torch==2.13.0 dm-control==1.0.50 ...``: one column in ``dvc metrics
+    show``)."""
     versions = " ".join(f"{name}=={version}" for name, version in package_versions().items())
-    facts = {"device": str(device), "threads": torch.get_num_threads(), "cpus": os.cpu_count() or 0,
-             "versions": versions}
+    facts = {"device": str(device), "cpu": cpu_model(), "threads": torch.get_num_threads(),
+             "cpus": os.cpu_count() or 0, "versions": versions}
     if torch.device(device).type == "cuda":  # which card a GPU time was measured on
         facts["gpu"] = torch.cuda.get_device_name(torch.device(device))
     return facts
