@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import ast
 import os
-import platform
 import re
 import subprocess
 import sys
@@ -23,6 +22,8 @@ import time
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
+
+from mop_core.storage.timings import cpu_model
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -74,16 +75,6 @@ def revision() -> str:
     dirty = git("status", "--porcelain", "--untracked-files=no", "--", "mop_core", "benchmarks", "stages",
                 "params.yaml", "profiles")
     return commit + (" with uncommitted changes to the code it measures" if dirty else "")
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def machine() -> str:
