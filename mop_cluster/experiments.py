@@ -26,8 +26,9 @@ from pathlib import Path
 
 import yaml
 
+from .coordinator import Job
 from .dag import StageGraph, stage_graph, stale_entries
-from .worker import drop_lock_entries, stages_ran
+from .worker import drop_lock_entries, stages_ran, write_atomic
 
 
 @dataclass(frozen=True)
@@ -145,12 +146,10 @@ def plan_experiments(root: Path, head: str, specs: list[str], scratch: Path) -> 
     return experiments
 
 
-def experiment_jobs(head: str, experiments: list[Experiment]) -> list:
+def experiment_jobs(head: str, experiments: list[Experiment]) -> list[Job]:
     """The Ray jobs of ``experiments``, upstream first: an entry that no value changes is one job at ``head``
     for every combination (keyed by its name), the others one per combination (``entry (label)``). Each
     clone's dvc.lock loses every entry the run executes."""
-    from .coordinator import Job
-
     shared = {name: e.upstream[name] for e in experiments for name in e.entries if name not in e.own}
     stale = tuple(dict.fromkeys(name for e in experiments for name in e.entries))
     jobs = [Job(name, head, name, tuple(u for u in ups if u in shared), stale) for name, ups in shared.items()]
@@ -159,12 +158,6 @@ def experiment_jobs(head: str, experiments: list[Experiment]) -> list:
             ups = tuple(f"{u} ({e.label})" if u in e.own else u for u in e.upstream[entry] if u in e.entries)
             jobs.append(Job(f"{entry} ({e.label})", e.commit, entry, ups, stale))
     return jobs
-
-
-def _restore(path: Path, content: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_bytes(content)
-    tmp.replace(path)
 
 
 @dataclass(frozen=True)
@@ -255,6 +248,6 @@ def exp_run(root: Path, specs: list[str], address: str | None = None, workers: i
                     f"executed {len(recorded.ran)} stage(s)" + (f": {', '.join(recorded.ran)}" if recorded.ran else ""))
         finally:
             if kept is not None:
-                _restore(lock, kept)
+                write_atomic(lock, kept)
         run.seconds = time.perf_counter() - start
         return run

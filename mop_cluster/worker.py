@@ -113,9 +113,14 @@ def drop_lock_entries(lock: Path, stages: Iterable[str]) -> None:
         return
     for stage in stale:
         del entries[stage]
-    tmp = lock.with_name(f".{lock.name}.tmp")
-    tmp.write_text(yaml.safe_dump(data, sort_keys=False))
-    tmp.replace(lock)
+    write_atomic(lock, yaml.safe_dump(data, sort_keys=False).encode())
+
+
+def write_atomic(path: Path, content: bytes) -> None:
+    """``content`` to ``path`` through a temporary file beside it: a reader sees the old file or the new."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_bytes(content)
+    tmp.replace(path)
 
 
 def _dvc(args: list[str], clone: Path, env: dict, entry: str, scratch: Path, may_die: bool = False) -> str:
