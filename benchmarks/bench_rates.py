@@ -9,7 +9,10 @@ Measures in one process (after a warm-up; on CUDA every timed block ends with a 
 - student updates/s for a group of R = 1 and R = 8 students (the distill stage trains every seed of a
   (loss, pairing) as one group) at ``distill``, MSE and Q losses, 2 tasks: the group's updates/s, so
   R runs of 8 cost R / (8 * rate_8) seconds per step each;
-- control steps/s of ``eval.rollout_envs`` walkers stepped together under a batched student policy.
+- control steps/s of ``eval.rollout_envs`` walkers stepped together under a batched student policy;
+- the same over every core: jobs of ``eval.rollout_envs`` walkers in as many single-threaded processes as
+  this process may use (what the eval and shared-computation stages do with ``workers: auto``), with the
+  one-process rate's ratio.
 
 Writes the numbers as JSON (``--out``) with the device's name; ``mop_core.plan`` reads that file.
 
@@ -39,7 +42,7 @@ from mop_core.distill.distiller import Distiller
 from mop_core.distill.states import TaskStates
 from mop_core.distill.student import Student
 from mop_core.learning.nn import EnsembleCritic
-from mop_core.learning.runtime import configure_compute, resolve_device
+from mop_core.learning.runtime import available_cores, configure_compute, parallel_map, resolve_device
 from mop_core.storage.timings import machine_facts
 from mop_core.walker.rollout import episode_returns
 
@@ -126,6 +129,25 @@ def rollout_rate(profile: Path, device: torch.device, envs: int | None = None) -
     return envs * length / (time.perf_counter() - start)
 
 
+def _rollout_job(student_config, envs: int, length: int, seed: int) -> int:
+    """One eval-style job in a worker process: ``envs`` walkers under a CPU student for ``length`` steps."""
+    student = Student(student_config, 24, 6, 2).eval()
+    episode_returns(student_policy(student, 0, torch.device("cpu")), "walk", list(range(seed, seed + envs)),
+                    length, envs)
+    return envs * length
+
+
+def parallel_rollout_rate(profile: Path, workers: int) -> float:
+    """Control steps/s of 2 x ``workers`` jobs of ``eval.rollout_envs`` walkers (200-step episodes) over
+    ``workers`` single-threaded processes, the pool's start included (what eval pays)."""
+    config, _, envs = distill_profile(profile)
+    args = [(config.student, envs, 200, 1000 * j) for j in range(2 * workers)]
+    parallel_map(_rollout_job, args[:workers], workers, "warm-up")
+    start = time.perf_counter()
+    steps = sum(parallel_map(_rollout_job, args, workers, "rollouts"))
+    return steps / (time.perf_counter() - start)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--profile", default=str(ROOT / "profiles" / "thesis.yaml"))
@@ -146,8 +168,12 @@ def main() -> None:
               "pbrl_group_updates_per_second": pbrl_group_rates(profile, device, count),
               "student_group_updates_per_second": student_rates(profile, params, device, count),
               "rollout_control_steps_per_second": rollout_rate(profile, device),
-              "single_env_control_steps_per_second": rollout_rate(profile, device, envs=1)}
+              "single_env_control_steps_per_second": rollout_rate(profile, device, envs=1),
+              "parallel_rollout_workers": available_cores(),
+              "parallel_rollout_control_steps_per_second": parallel_rollout_rate(profile, available_cores())}
     print(json.dumps(result, indent=1))
+    ratio = result["parallel_rollout_control_steps_per_second"] / result["rollout_control_steps_per_second"]
+    print(f"rollouts over {result['parallel_rollout_workers']} processes: {ratio:.2f}x one process's batched rate")
     if args.out:
         Path(args.out).write_text(json.dumps(result, indent=1) + "\n")
 

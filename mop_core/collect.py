@@ -34,7 +34,13 @@ from mop_core.experiment.study import StudyConfig, section
 from mop_core.learning.nn import numpy_policy
 from mop_core.learning.online import fit_online
 from mop_core.learning.resume import run_fingerprint
-from mop_core.learning.runtime import CriterionNotMetError, configure_compute, derive_seeds, die_with_parent
+from mop_core.learning.runtime import (
+    CriterionNotMetError,
+    configure_compute,
+    derive_seeds,
+    die_with_parent,
+    resolve_workers,
+)
 from mop_core.learning.schedule import OnlineSchedule
 from mop_core.storage.artifacts import save_checkpoint, state_sha256, write_curve
 from mop_core.storage.files import write_json
@@ -143,11 +149,11 @@ class CollectConfig:
 class ParallelConfig:
     """collect.parallel: how many task processes run at once and their torch threads."""
 
-    workers: int = 2  # task processes at a time (use the number of cores)
+    workers: int | str = 2  # task processes at a time; auto: the cores this process may use
     threads_per_worker: int = 1  # torch threads in each process
 
     def __post_init__(self) -> None:
-        require(self.workers >= 1, "workers", "a positive integer", self.workers)
+        object.__setattr__(self, "workers", resolve_workers(self.workers, "workers"))
         require(self.threads_per_worker >= 1, "threads_per_worker", "a positive integer", self.threads_per_worker)
 
 

@@ -23,8 +23,11 @@ updates are not) and a data-sharing or substituted-set student (distill_sharing,
 what a plain MSE student does; the state-shift students (distill_composed, distill_size,
 distill_corrected) too, whatever their width (a lower bound for width 512; a reweighted student's
 classifier is left out, DAgger's rollouts are counted), and compose rolls out its pools at the rollout rate, its
-task processes in waves of ``state_shift.workers`` (the state_shift stage's measures, seconds, are
-left out). It is an estimate from rates measured in isolation, not a measurement of the stages.
+task processes in waves of ``state_shift.workers`` (the state_shift stage's measures, seconds, are left
+out); eval and shared computation roll out at the all-cores rate (``parallel_rollout``: jobs over every
+core's process) where their ``workers`` is ``auto`` and the rates file has it, else at one process's
+rate; collect's and compose's ``workers: auto`` are the measured machine's cores. It is an estimate from
+rates measured in isolation, not a measurement of the stages.
 """
 
 from __future__ import annotations
@@ -54,6 +57,8 @@ class Rates:
     student: Mapping[str, Mapping[int, float]]  # loss -> group size R -> group updates/s
     rollout: float  # control steps/s, batched walkers under one policy
     single_env: float  # control steps/s, one walker stepped with one policy call per step
+    parallel_rollout: float | None = None  # control steps/s of eval-style jobs over every core's process
+    cores: int = 1  # the processes parallel_rollout ran in: what ``workers: auto`` means on the device machine
 
     @classmethod
     def from_json(cls, record: Mapping[str, Any]) -> "Rates":
@@ -62,7 +67,15 @@ class Rates:
         return cls(str(record["machine"].get("gpu", record["device"])), float(record["td3_updates_per_second"]),
                    dict(record["pbrl_updates_per_second"]), student,
                    float(record["rollout_control_steps_per_second"]),
-                   float(record["single_env_control_steps_per_second"]))
+                   float(record["single_env_control_steps_per_second"]),
+                   record.get("parallel_rollout_control_steps_per_second"),  # absent from older rates files
+                   int(record.get("parallel_rollout_workers", 1)))
+
+    def rollout_over(self, workers: int | str) -> float:
+        """Control steps/s of a stage's rollout jobs in ``workers`` processes: the all-cores rate where the
+        profile says ``auto`` (or at least the measured count) and it was measured, else one process's."""
+        spread = workers == "auto" or (isinstance(workers, int) and workers >= self.cores > 1)
+        return self.parallel_rollout if spread and self.parallel_rollout else self.rollout
 
     def student_seconds_per_update(self, loss: str, runs: int) -> float:
         """Seconds per update of a group of ``runs`` students: interpolated between the measured sizes."""
@@ -126,7 +139,8 @@ def _compose_hours(params: Mapping[str, Any], rates: Rates) -> tuple[int, float]
     config, teachers = compose_config(grid), build_catalogue(params).composing_teachers
     episodes = (sum(config.pool_sizes().values()) + sum(config.pool_sizes(heldout=True).values())
                 + config.reference_episodes)
-    waves = math.ceil(len(teachers) / grid.workers)
+    workers = rates.cores if params["state_shift"].get("workers") == "auto" else grid.workers
+    waves = math.ceil(len(teachers) / workers)
     return len(teachers) * len(config.datasets), waves * episodes * study.episode_length / rates.rollout / 3600
 
 
@@ -144,7 +158,8 @@ def stage_hours(params: Mapping[str, Any], rates: Rates) -> dict[str, tuple[int,
                          + sched["total_steps"] // sched["eval_every"] * sched["eval_episodes"]
                          + 2 * sched["snapshot_eval_episodes"])
     per_task = sched["total_steps"] / rates.td3 + env_steps / rates.single_env + rollouts / rates.rollout
-    waves = math.ceil(len(tasks) / collect["parallel"]["workers"])
+    workers = collect["parallel"]["workers"]
+    waves = math.ceil(len(tasks) / (rates.cores if workers == "auto" else workers))
     out["collect"] = (len(tasks), waves * per_task / 3600)
 
     t_sched = lambda level: teacher_schedule(params, level)  # noqa: E731
@@ -169,9 +184,10 @@ def stage_hours(params: Mapping[str, Any], rates: Rates) -> dict[str, tuple[int,
 
     transfer = tuple(params["eval"].get("transfer_tasks") or ())
     out["eval"] = _hours(catalogue.eval_jobs(transfer_tasks=transfer),
-                         lambda _: params["eval"]["episodes"] * length / rates.rollout)
+                         lambda _: params["eval"]["episodes"] * length / rates.rollout_over(params["eval"]["workers"]))
+    shared_rate = rates.rollout_over(params["shared_computation"]["workers"])
     out["shared_computation"] = _hours(catalogue.students, lambda run: (
-        len(run.tasks) * params["shared_computation"]["episodes"] * length / rates.rollout))
+        len(run.tasks) * params["shared_computation"]["episodes"] * length / shared_rate))
     return out
 
 

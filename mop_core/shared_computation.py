@@ -41,7 +41,7 @@ import torch
 
 from mop_core.config import from_mapping, require
 from mop_core.experiment.study import positive_threads, section
-from mop_core.learning.runtime import derive_seeds, parallel_map
+from mop_core.learning.runtime import derive_seeds, parallel_map, resolve_workers
 from mop_core.representations.measures import (
     TAU_VARIANTS,
     average_comparison,
@@ -65,11 +65,12 @@ class SharedComputationConfig:
 
     episodes: int = 10  # per task (thesis 6.2.1: 1000)
     rollout_envs: int = 10  # walkers stepped together in one process
-    workers: int = 2  # rollout processes (one torch thread each)
+    workers: int | str = 2  # rollout processes (one torch thread each); auto: the cores this process may use
 
     def __post_init__(self) -> None:
-        for name in ("episodes", "rollout_envs", "workers"):
+        for name in ("episodes", "rollout_envs"):
             require(getattr(self, name) >= 1, name, "a positive integer", getattr(self, name))
+        object.__setattr__(self, "workers", resolve_workers(self.workers, "workers"))
 
 
 def shared_computation_config(params: Mapping[str, Any]) -> tuple[int, SharedComputationConfig]:

@@ -87,6 +87,25 @@ def test_compose_costs_the_pools_compose_rolls_out():
     # per task: the largest pools its datasets need, and their held-out sets' (1000 + 900 + 990, 100 + 90 + 99)
     episodes = 2890 + 289 + config.reference_episodes
     assert sum(config.pool_sizes().values()) + sum(config.pool_sizes(heldout=True).values()) == 2890 + 289
-    waves = -(-len(THESIS["study"]["tasks"]) // THESIS["state_shift"]["workers"])
+    assert THESIS["state_shift"]["workers"] == "auto"  # the measured machine's cores
+    waves = -(-len(THESIS["study"]["tasks"]) // RATES.cores)
     assert stage_hours(THESIS, RATES)["compose"] == (
         8, pytest.approx(waves * episodes * THESIS["study"]["episode_length"] / 5000.0 / 3600))
+
+
+def test_rollouts_over_every_core_cost_eval_and_shared_computation_their_all_core_rate():
+    one = stage_hours(THESIS, RATES)  # a rates file without the all-cores rate: one process's
+    spread = Rates(**{**RATES.__dict__, "parallel_rollout": 4 * RATES.rollout, "cores": 16})
+    hours = stage_hours(THESIS, spread)
+    assert THESIS["eval"]["workers"] == THESIS["shared_computation"]["workers"] == "auto"
+    for stage in ("eval", "shared_computation"):
+        assert hours[stage][1] == pytest.approx(one[stage][1] / 4)
+    assert hours["train_teachers"] == one["train_teachers"]  # a teacher's evaluations: one process
+    fixed = {**THESIS, "eval": {**THESIS["eval"], "workers": 2}}
+    assert stage_hours(fixed, spread)["eval"][1] == pytest.approx(one["eval"][1])  # 2 of 16 cores: not spread
+    record = {"machine": {}, "device": "cpu", "td3_updates_per_second": 1, "pbrl_updates_per_second": {},
+              "student_group_updates_per_second": {}, "rollout_control_steps_per_second": 10,
+              "single_env_control_steps_per_second": 5}
+    assert Rates.from_json(record).parallel_rollout is None  # an older rates file
+    assert Rates.from_json(record | {"parallel_rollout_control_steps_per_second": 80,
+                                     "parallel_rollout_workers": 16}).rollout_over("auto") == 80

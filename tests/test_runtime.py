@@ -19,6 +19,7 @@ from mop_core.learning.runtime import (
     parallel_map,
     progress_enabled,
     resolve_device,
+    resolve_workers,
     set_threads,
 )
 
@@ -137,3 +138,13 @@ def test_configure_compute_flushes_subnormal_floats(monkeypatch):
         assert (subnormal * 1.0).item() == 0.0  # flushed: no slow subnormal arithmetic
     finally:
         torch.set_flush_denormal(False)
+
+
+def test_workers_auto_is_the_cores_this_process_may_use_and_bad_values_name_their_key(monkeypatch):
+    monkeypatch.setenv(runtime.THREADS_ENV, "5")  # a mop-cluster entry's CPUs
+    assert resolve_workers("auto", "eval.workers") == 5 and resolve_workers(3, "eval.workers") == 3
+    monkeypatch.delenv(runtime.THREADS_ENV)
+    assert resolve_workers("auto", "eval.workers") == len(os.sched_getaffinity(0))
+    for bad in (0, -1, 1.5, True, "all", None):
+        with pytest.raises(ConfigError, match=r"^eval.workers: expected a positive integer or 'auto' \(the cores "):
+            resolve_workers(bad, "eval.workers")

@@ -239,3 +239,24 @@ def test_the_data_sharing_names_the_params_check_knows_are_the_runs_own():
 
     assert SHARING_TEACHERS == SHARING_KINDS
     assert SHARING_STUDENTS == {name: v.kind for name, v in SHARING_VARIANTS.items() if v.pooled_states}
+
+
+def test_every_rollout_workers_key_takes_auto_as_the_cores_this_process_may_use(tiny_params, monkeypatch):
+    from mop_core.collect import collect_configs
+    from mop_core.experiment.study import EvalConfig, shift_grid, typed_section
+    from mop_core.learning.runtime import THREADS_ENV
+    from mop_core.shared_computation import shared_computation_config
+    from mop_core.study_params import check_params
+
+    monkeypatch.setenv(THREADS_ENV, "7")
+    params = tiny_params
+    for key in ("collect.parallel.workers", "state_shift.workers", "eval.workers", "shared_computation.workers"):
+        params = _set(params, key, "auto")
+    check_params(params, "params.yaml")
+    study = study_config(params)
+    assert collect_configs(params, study)[0].workers == 7
+    assert shift_grid(params, study).workers == 7
+    assert typed_section(params, "eval", EvalConfig).workers == 7
+    assert shared_computation_config(params)[1].workers == 7
+    with _raises("shared_computation.workers: expected a positive integer or 'auto'"):
+        shared_computation_config(_set(params, "shared_computation.workers", "all"))

@@ -20,7 +20,7 @@ from typing import Any, Mapping
 from mop_core.config import ConfigError, from_mapping, require, require_unique
 from mop_core.experiment.variants import OFFLINE_DATA, SHIFT_CORRECTIONS
 from mop_core.learning.nn import ACTOR_TYPES
-from mop_core.learning.runtime import resolve_threads
+from mop_core.learning.runtime import resolve_threads, resolve_workers
 from mop_core.learning.schedule import TrainSchedule
 from mop_core.storage.layout import LEVELS
 from mop_core.walker.tasks import check_task_list, get_task, substitute_base
@@ -223,7 +223,7 @@ class ShiftGrid:
     reference_episodes: int = 20
     heldout_episodes: int = 10
     rollout_envs: int = 10
-    workers: int = 2
+    workers: int | str = 2  # compose's rollout processes; auto: the cores this process may use
     widths: tuple[int, ...] = ()
     data_percents: tuple[int, ...] = ()
     corrections: tuple[str, ...] = ()
@@ -237,7 +237,7 @@ class ShiftGrid:
                 "data_percents", "a list of whole percentages in [1, 99] (100 is plain MOP)", list(self.data_percents))
         require_unique(self.data_percents, "data_percents")
         require_unique(self.datasets, "datasets")
-        require(self.workers >= 1, "workers", "a positive integer", self.workers)
+        object.__setattr__(self, "workers", resolve_workers(self.workers, "workers"))
         require(not (self.widths and not self.datasets), "widths", "[] when no datasets are composed",
                 list(self.widths))
         require(all(c in SHIFT_CORRECTIONS for c in self.corrections), "corrections",
@@ -438,7 +438,7 @@ class EvalConfig:
 
     episodes: int = 30  # per policy and task: the CI unit of a policy trained once
     rollout_envs: int = 30  # walkers stepped together in one process
-    workers: int = 2  # processes (one torch thread each)
+    workers: int | str = 2  # processes (one torch thread each); auto: the cores this process may use
     bootstrap_reps: int = 2000  # replicates of the stratified bootstrap (IQM, probability of improvement)
     gaussian_student_action: str = "mean"  # KL students act by their mean, or by a sample (the reference code)
     transfer_tasks: tuple[str, ...] = ()  # tasks no policy trains on: the cross-task teachers are evaluated on
@@ -447,8 +447,9 @@ class EvalConfig:
     def __post_init__(self) -> None:
         require(self.episodes >= 2, "episodes", "an integer >= 2 (a confidence interval needs two units)",
                 self.episodes)
-        for name in ("rollout_envs", "workers", "bootstrap_reps"):
+        for name in ("rollout_envs", "bootstrap_reps"):
             require(getattr(self, name) >= 1, name, "a positive integer", getattr(self, name))
+        object.__setattr__(self, "workers", resolve_workers(self.workers, "workers"))
         require(self.gaussian_student_action in GAUSSIAN_ACTIONS, "gaussian_student_action",
                 f"one of {GAUSSIAN_ACTIONS}", self.gaussian_student_action)
         if self.transfer_tasks:

@@ -46,6 +46,19 @@ def resolve_threads(value: Any, key: str) -> int:
     return value
 
 
+def resolve_workers(value: Any, key: str) -> int:
+    """A rollout ``workers`` param (processes that each roll out whole jobs): a positive integer, or ``auto``
+    (:func:`available_cores`). Unlike ``threads``, ``auto`` costs nothing here: every job draws its own
+    episode seeds and runs in one single-threaded process, so the results do not depend on how many
+    processes share the jobs (tested for eval and shared computation); a 64-core machine rolls out on 64."""
+    if value == "auto":
+        return available_cores()
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ConfigError(f"{key}: expected a positive integer or 'auto' (the cores this process may use), "
+                          f"got {value!r}")
+    return value
+
+
 def resolve_device(name: str, key: str = "device") -> torch.device:
     """``auto`` picks CUDA when present, else the CPU; ``cpu``/``cuda``/``cuda:N`` are taken as given."""
     if name == "auto":
