@@ -31,6 +31,8 @@ def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mop-cluster", description=__doc__.splitlines()[0])
     commands = parser.add_subparsers(dest="command", required=True)
     run = commands.add_parser("repro", help="run the stale entries on a Ray cluster, then dvc repro")
+    run.add_argument("targets", nargs="*", help="stages or entries (stage@key), as dvc repro takes them: only "
+                                                "what they read from runs (default: the whole pipeline)")
     exp = commands.add_parser("exp", help="DVC experiments on a Ray cluster").add_subparsers(dest="exp_command",
                                                                                            required=True)
     sweep = exp.add_parser("run", help="one DVC experiment per -S value, their stale entries on a Ray cluster")
@@ -82,7 +84,8 @@ def main(argv: list[str] | None = None) -> int:
         return _exp_run(args)
     try:
         run = repro(args.root, args.address, args.workers, args.gpus_per_run, args.retries,
-                    auto_cpus=args.auto_threads, git_url=args.git_url, dvc_remote=args.dvc_remote)
+                    auto_cpus=args.auto_threads, git_url=args.git_url, dvc_remote=args.dvc_remote,
+                    targets=tuple(args.targets))
     except (ClusterError, EntryFailed, KeyError, ValueError) as exc:
         return _error(str(exc))
     except (KeyboardInterrupt, SystemExit):  # Ctrl-C; SIGTERM (Ray's handler, once Ray runs, exits)

@@ -96,8 +96,9 @@ def sharing(root: Path, commit: str, git_url: str | None = None, dvc_remote: boo
 
 def repro(root: Path, address: str | None = None, workers: int | None = None, gpus_per_run: float = 0.0,
           retries: int = 2, scratch: Path | None = None, log=print, auto_cpus: int = 2,
-          git_url: str | None = None, dvc_remote: bool = False) -> ClusterRun:
+          git_url: str | None = None, dvc_remote: bool = False, targets: tuple[str, ...] = ()) -> ClusterRun:
     """Run ``root``'s stale entries on a Ray cluster, then ``dvc repro`` in ``root`` (restoring them).
+    With ``targets`` (stages or entries, as ``dvc repro`` takes them) only what they read from runs.
     With ``dvc_remote`` the workers share no filesystem with ``root``: the workspace first pushes what it
     has, each worker pulls and pushes through the remote, and the closing ``dvc repro --pull`` fetches."""
     import ray
@@ -108,7 +109,7 @@ def repro(root: Path, address: str | None = None, workers: int | None = None, gp
         commit = _check_committed(root)
         shared = sharing(root, commit, git_url, dvc_remote)
         graph = stage_graph(root)
-        entries = stale_entries(root, graph)
+        entries = stale_entries(root, graph, targets)
         sized = entry_resources(entries, root / "params.yaml", gpus_per_run, auto_cpus=auto_cpus)
         run = ClusterRun(entries)
         if entries:
@@ -119,7 +120,7 @@ def repro(root: Path, address: str | None = None, workers: int | None = None, gp
             run.results = run_on_ray(ray, root, jobs, sized, address, workers, gpus_per_run, retries,
                                      scratch or root / SCRATCH, log, shared)
             drop_lock_entries(root / "dvc.lock", entries)  # stale: the closing repro restores each from the run cache
-        final = subprocess.run(["dvc", "repro", *(["--pull"] if shared.remote else [])], cwd=root,
+        final = subprocess.run(["dvc", "repro", *(["--pull"] if shared.remote else []), *targets], cwd=root,
                                capture_output=True, text=True)
         if final.returncode != 0:
             raise ClusterError(f"dvc repro in {root} failed:\n{final.stdout[-2000:]}{final.stderr[-2000:]}")

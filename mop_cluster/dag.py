@@ -41,6 +41,28 @@ class StageGraph:
                 closed.add(name)
         return closed
 
+    def upstream_closure(self, entries: set[str]) -> set[str]:
+        """``entries`` and every entry they read from, directly or not: what ``dvc repro ENTRY`` may run."""
+        closed, pending = set(), list(entries)
+        while pending:
+            name = pending.pop()
+            if name not in closed:
+                closed.add(name)
+                pending += self.upstream[name]
+        return closed
+
+    def resolve(self, targets: tuple[str, ...]) -> set[str]:
+        """The entries ``targets`` name as ``dvc repro`` reads them: an entry (``distill@mse-medium``) or a
+        stage, meaning all of its matrix entries (``distill``). An unknown name raises ValueError naming it."""
+        found: set[str] = set()
+        for target in targets:
+            named = {e for e in self.upstream if e == target or e.split("@", 1)[0] == target}
+            if not named:
+                stages = sorted({e.split("@", 1)[0] for e in self.upstream})
+                raise ValueError(f"target {target!r}: no such stage or entry in dvc.yaml (stages: {', '.join(stages)})")
+            found |= named
+        return found
+
 
 def stage_graph(root: Path) -> StageGraph:
     """The DAG of ``root``'s dvc.yaml, with matrix and foreach entries expanded (``stage@entry``)."""
@@ -52,11 +74,14 @@ def stage_graph(root: Path) -> StageGraph:
                            for stage in graph.nodes})
 
 
-def stale_entries(root: Path, graph: StageGraph) -> list[str]:
-    """The entries ``dvc repro`` would run: those ``dvc status`` names and everything downstream of them."""
+def stale_entries(root: Path, graph: StageGraph, targets: tuple[str, ...] = ()) -> list[str]:
+    """The entries ``dvc repro [TARGETS]`` would run: those ``dvc status`` names and everything downstream of
+    them; with ``targets``, only those the targets read from (the targets included)."""
     result = subprocess.run(["dvc", "status", "--json"], cwd=root, capture_output=True, text=True)
     if result.returncode != 0:
         raise RuntimeError(f"dvc status failed in {root}:\n{result.stderr.strip()}")
     changed = set(json.loads(result.stdout or "{}")) & set(graph.upstream)
     closure = graph.downstream_closure(changed)
+    if targets:
+        closure &= graph.upstream_closure(graph.resolve(targets))
     return [name for name in graph.order() if name in closure]

@@ -452,3 +452,37 @@ def test_a_sweep_in_a_fresh_clone_runs_the_shared_upstream_once_and_dvc_exp_run_
     assert sorted(counter.read_text().split()) == ["copy"] * 4 + ["source"]
     assert (clone / "dvc.lock").read_text() == lock
     assert _git_run(["git", "status", "--porcelain", "--untracked-files=no"], clone) == ""
+    again = subprocess.run(sweep[:4] + ["suffix=b", "--workers", "2"], cwd=clone, capture_output=True, text=True,
+                           env=os.environ | CLUSTER_ENV, timeout=600)  # a value run before: restored, not rerun
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert "1 experiment(s) (0 entries ran on workers" in again.stdout, again.stdout
+    assert sorted(counter.read_text().split()) == ["copy"] * 4 + ["source"]
+
+
+def test_targets_are_resolved_as_dvc_repro_reads_them_with_what_they_read_from():
+    graph = StageGraph({"collect": (), "teachers@a": ("collect",), "teachers@b": ("collect",),
+                        "distill@x": ("teachers@a",), "eval": ("distill@x", "teachers@b")})
+    assert graph.resolve(("teachers",)) == {"teachers@a", "teachers@b"}
+    assert graph.upstream_closure(graph.resolve(("distill@x",))) == {"distill@x", "teachers@a", "collect"}
+    with pytest.raises(ValueError, match=r"^target 'distil': no such stage or entry in dvc.yaml \(stages: collect, "):
+        graph.resolve(("distil",))
+
+
+@pytest.mark.slow
+def test_targets_run_only_what_they_read_from_and_an_unknown_one_is_refused_before_compute(tmp_path):
+    """mop-cluster repro TARGET, as dvc repro TARGET: copy@1 and its upstream run on workers, copy@2 does not,
+    and the closing dvc repro copy@1 executes nothing; a misspelt target stops the run before any entry."""
+    import subprocess
+
+    clone, counter = _recorded_elsewhere(tmp_path)
+    refused = subprocess.run(["mop-cluster", "repro", "--workers", "2", "cpy"], cwd=clone, capture_output=True,
+                             text=True, env=os.environ | CLUSTER_ENV, timeout=600)
+    assert refused.returncode == 2 and "error: target 'cpy': no such stage or entry" in refused.stderr, refused.stderr
+    assert not counter.exists()
+    result = subprocess.run(["mop-cluster", "repro", "--workers", "2", "copy@1"], cwd=clone, capture_output=True,
+                            text=True, env=os.environ | CLUSTER_ENV, timeout=600)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "2 entries (2 ran on workers, 0 restored)" in result.stdout, result.stdout
+    assert "the workspace's dvc repro executed 0 stage(s)" in result.stdout, result.stdout
+    assert sorted(counter.read_text().split()) == ["copy", "source"]
+    assert (clone / "copy1.txt").exists() and not (clone / "copy2.txt").exists()

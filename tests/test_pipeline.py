@@ -727,37 +727,41 @@ def _without_timings(outputs: dict[str, str]) -> dict[str, str]:
 
 
 def test_the_study_through_mop_cluster_on_two_ray_nodes_equals_the_serial_run(repo, tmp_path):
-    """`mop-cluster repro` on a local cluster of two Ray nodes (a head and a worker node started on this
-    machine): every entry runs in its own clone sharing the DVC cache; the first attempt at relabel dies
-    mid-entry (a killed worker) and Ray retries it; the workspace's own dvc repro then executes nothing, and
-    every output equals the serial run's (the module's fixture), timing records aside. Then a sweep of two
-    values on the same cluster: two DVC experiments, and a value run again is restored, not rerun."""
+    """`mop-cluster repro distill@mse-medium` on a local cluster of two Ray nodes (a head and a worker node
+    started on this machine): the MSE students and every entry they read from in dvc.yaml, as `dvc dag` draws
+    it, run each in its own clone sharing the DVC cache, and no other entry. student_inputs reads the whole of
+    data/teachers and data/composed, so every teacher entry (the Gaussian ones too) and compose are upstream of
+    any student; the other students, the multi-task baseline, eval and report are not. The first attempt at
+    relabel dies mid-entry (a killed worker) and Ray retries it; the workspace's own dvc repro of the target
+    then executes nothing, and every output equals the serial run's (the module's fixture), timing records
+    aside. The whole tiny study through the cluster is benchmarks/bench_cluster.py's measure; sweeps
+    on a cluster are tests/test_cluster.py's (a smaller pipeline: the same code paths, a tenth of the time)."""
     _run(["git", "checkout", "-q", "HEAD", "--", "."], repo)  # HEAD: dvc autostages dvc.lock
     _run(["dvc", "checkout", "-q"], repo)
     study = committed_project(ROOT, tmp_path / "study")
-    port = "6391"
+    port, target = "6391", "distill@mse-medium"
     env = "MOP_CLUSTER_KILL_ONCE=relabel RAY_USAGE_STATS_ENABLED=0 RAY_AUTH_MODE=disabled"  # one machine: no token
     try:
         _run(f"{env} ray start --head --port {port} --num-cpus 2 --num-gpus 0 --include-dashboard false", study)
         _run(f"{env} ray start --address 127.0.0.1:{port} --num-cpus 2 --num-gpus 0", study)
-        out = _run(f"{env} mop-cluster repro --address 127.0.0.1:{port}", study).stdout
+        out = _run(f"{env} mop-cluster repro --address 127.0.0.1:{port} {target}", study).stdout
         assert "the workspace's dvc repro executed 0 stage(s)" in out, out
         assert "relabel ran" in out and list((study / ".dvc" / "tmp" / "mop-cluster").glob("killed-relabel")), out
-        assert not _stages_run(_run(["dvc", "repro"], study).stdout)
-        assert json.loads(_run(["dvc", "status", "--json"], study).stdout) == {}
-        assert _without_timings(_outputs(study)) == _without_timings(_outputs(repo))
+        def drawn(*targets: str) -> set[str]:  # the entries `dvc dag` draws (upstream of targets, if any)
+            return set(re.findall(r'^"([^"]+)";$', _run(["dvc", "dag", "--dot", *targets], study).stdout, re.M))
 
-        # a sweep on the cluster: one DVC experiment per value, each made by dvc exp run restoring everything
-        _run(["git", "add", "dvc.lock"], study)  # exp run, like repro, starts from a committed study
-        _run(["git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "lock"], study)
-        sweep = f"{env} mop-cluster exp run -S eval.bootstrap_reps=100,300 --address 127.0.0.1:{port}"
-        out = _run(sweep, study).stdout
-        assert out.count("dvc exp run executed 0 stage(s)") == 2 and "2 experiment(s) (8 entries ran" in out, out
-        shown = json.loads(_run(["dvc", "exp", "show", "--json"], study).stdout)
-        reps = {rev["data"]["params"]["params.yaml"]["data"]["eval"]["bootstrap_reps"]
-                for base in shown for experiment in base.get("experiments") or [] for rev in experiment["revs"]}
-        assert reps == {100, 300}
-        out = _run(sweep.replace("100,300", "100"), study).stdout  # a value run before: every entry restored
-        assert "1 experiment(s) (0 entries ran on workers, 4 restored)" in out, out
+        done = dict(re.findall(r"^mop-cluster: (\S+) (ran|restored) in ", out, flags=re.MULTILINE))
+        read, every = drawn(target), drawn()
+        assert set(done) == read < every, (sorted(done), sorted(read))  # what the target reads from, no more
+        for entry in ("params", "collect", "relabel", "train_teachers@medium-deterministic",
+                      "train_teachers@medium-gaussian", "compose", "student_inputs", target):  # via data/teachers
+            assert done.get(entry) == "ran", out
+        for entry in ("distill@kl-medium", "train_multitask@medium-0", "eval", "report"):  # not read by the target
+            assert entry in every and entry not in done, out
+        assert not _stages_run(_run(["dvc", "repro", target], study).stdout)
+        assert json.loads(_run(["dvc", "status", "--json", target], study).stdout) == {}
+        ours, serial = _without_timings(_outputs(study)), _without_timings(_outputs(repo))
+        assert any(path.startswith("results/students/") for path in ours), sorted(ours)
+        assert {path: serial.get(path) for path in ours} == ours
     finally:
         _run(["ray", "stop", "--force"], study, check=False)
