@@ -1,4 +1,5 @@
-"""Issue 39, part 1: a training update makes no host round trip. Minibatch indices come from generators
+"""Issue 39, part 1: a training update makes no host round trip (a PBRL group's: its replayed CUDA graphs).
+Minibatch indices come from generators
 on the data's device and metrics stay tensors, so on CUDA a step of the PBRL teacher group (the
 train_teachers stage's learner, sampling included), of a student group (MSE and Q losses) and of TD3
 runs under ``torch.cuda.set_sync_debug_mode("error")``, which raises on any synchronising call
@@ -26,6 +27,7 @@ from mop_core.learning.nn import EnsembleCritic
 from mop_core.teachers import _GroupLearner
 
 STEPS = 3
+CAPTURED = 6  # calls before the checked ones: on CUDA a PBRL group's both variants warm up and are captured
 
 
 def _dataset(rows: int, seed: int, device: torch.device) -> TransitionTensors:
@@ -39,13 +41,16 @@ def _dataset(rows: int, seed: int, device: torch.device) -> TransitionTensors:
 def _learners(device: torch.device) -> dict:
     """Each learner's update, built (and warmed up: first calls allocate) on ``device``."""
     learners = {}
-    for actor in ("deterministic", "gaussian"):
+    for actor, graphs, name in (("deterministic", None, ""), ("gaussian", None, ""),
+                                ("deterministic", False, "-eager")):
         config = PBRLConfig(actor=actor, hidden_sizes=(32, 32), batch_size=64, ood_actions=2, layer_norm=True,
                             target_entropy=-6.0)
-        group = PBRLGroup(config, 24, 6, [0, 1], device)
+        group = PBRLGroup(config, 24, 6, [0, 1], device, cuda_graphs=graphs)
         learner = _GroupLearner(group, [_dataset(500, 0, device), _dataset(500, 1, device)],
-                                [torch.Generator(device).manual_seed(s) for s in (0, 1)], 64, STEPS + 1)
-        learners[f"pbrl-{actor}"] = learner.update
+                                [torch.Generator(device).manual_seed(s) for s in (0, 1)], 64, CAPTURED + STEPS)
+        learners[f"pbrl-{actor}{name}"] = learner.update
+        for _ in range(CAPTURED - 1):  # the checked steps replay the graphs (eager on the CPU)
+            learner.update()
     g = torch.Generator().manual_seed(0)
     tasks = [TaskStates(f"task{i}", torch.randn(300, 24, generator=g).to(device),
                         (torch.rand(300, 6, generator=g) * 2 - 1).to(device), None, {}) for i in range(2)]
@@ -53,13 +58,14 @@ def _learners(device: torch.device) -> dict:
     for loss in ("mse", "q"):
         config = DistillConfig(loss=loss, student=StudentConfig(hidden_sizes=(32, 32)), batch_size=32)
         learners[f"student-{loss}"] = Distiller(config, [tasks] * 2, 24, 6, [0, 1], critics if loss == "q" else None,
-                                                device, total_steps=STEPS + 1).update
+                                                device, total_steps=CAPTURED + STEPS).update
     td3 = TD3(TD3Config(hidden_sizes=(32, 32), batch_size=64), 24, 6, 0, device)
     batch = _dataset(64, 2, device)
     fixed = Batch(batch.observations, batch.actions, batch.rewards, batch.next_observations, batch.terminals)
     learners["td3"] = lambda: td3.update(fixed)
-    for update in learners.values():
-        update()
+    for name, update in learners.items():
+        for _ in range(1 if name.startswith("pbrl") else CAPTURED):  # students: warmed up and captured too
+            update()
     return learners
 
 
@@ -79,7 +85,8 @@ def _sync_debug_error():
         torch.cuda.set_sync_debug_mode("default")
 
 
-@pytest.mark.parametrize("name", ["pbrl-deterministic", "pbrl-gaussian", "student-mse", "student-q", "td3"])
+@pytest.mark.parametrize("name", ["pbrl-deterministic", "pbrl-gaussian", "pbrl-deterministic-eager", "student-mse",
+                                  "student-q", "td3"])
 def test_an_update_makes_no_host_round_trip(name):
     device = torch.device(TEST_DEVICE)
     update = _learners(device)[name]

@@ -37,6 +37,7 @@ from mop_core.agents.pbrl import (
     ood_target,
 )
 from mop_core.data.buffer import Batch
+from mop_core.learning.graphs import GraphedStep, capturable_adam, graphs_enabled, keep_capturable
 from mop_core.learning.nn import (
     EnsembleCritic,
     EnsembleLinear,
@@ -112,7 +113,7 @@ class PBRLGroup:
     """
 
     def __init__(self, config: PBRLConfig, obs_dim: int, act_dim: int, seeds: Sequence[int],
-                 device: torch.device | str = "cpu"):
+                 device: torch.device | str = "cpu", cuda_graphs: bool | None = None):
         if not seeds or len(set(seeds)) != len(seeds):
             raise ValueError(f"seeds: expected distinct seeds, one per run, got {list(seeds)}")
         self.config, self.device, self.seeds = config, torch.device(device), list(seeds)
@@ -120,18 +121,23 @@ class PBRLGroup:
         runs = [PBRL(config, obs_dim, act_dim, seed, self.device) for seed in seeds]  # each run's own init
         self.actor = ActorGroup([run.actor for run in runs]).to(self.device)
         self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
-        self.actor_optimizer = adam(self.actor.parameters(), config.learning_rate)
+        # on CUDA the update is captured as CUDA graphs (mop_core.learning.graphs); eager elsewhere
+        captured = graphs_enabled(self.device, cuda_graphs)
+        optimizer = (lambda params: capturable_adam(params, config.learning_rate, self.device)) if captured else (
+            lambda params: adam(params, config.learning_rate))
+        self.actor_optimizer = optimizer(self.actor.parameters())
         self.critic = EnsembleCritic(obs_dim, act_dim, config.hidden_sizes, len(seeds) * config.ensemble_size,
                                      config.layer_norm).to(self.device)
         self.critic.load_state_dict({key: torch.cat([run.critic.critic.state_dict()[key] for run in runs])
                                      for key in self.critic.state_dict()})
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
-        self.critic_optimizer = adam(self.critic.parameters(), config.learning_rate)
+        self.critic_optimizer = optimizer(self.critic.parameters())
         self.log_alpha = torch.stack([run.temperature.log_alpha.detach() for run in runs]).requires_grad_(
             config.target_entropy is not None)
-        self.alpha_optimizer = None if config.target_entropy is None else adam([self.log_alpha], config.learning_rate)
+        self.alpha_optimizer = None if config.target_entropy is None else optimizer([self.log_alpha])
         self.generators = [run.generator for run in runs]
         self.updates = 0
+        self.graphed = GraphedStep(self._captured_step, self.generators) if captured else None
 
     @property
     def runs(self) -> int:
@@ -216,21 +222,19 @@ class PBRLGroup:
             return per_run.sum(), {"actor_loss": per_run.detach(), "actor_q": q.mean(dim=-1).detach()}, None
         weight = alpha.unsqueeze(-1) if isinstance(alpha, torch.Tensor) else alpha
         per_run = -(q + weight * entropy).mean(dim=-1)
-        alphas = alpha if isinstance(alpha, torch.Tensor) else torch.full((self.runs,), float(alpha))
+        alphas = alpha if isinstance(alpha, torch.Tensor) else torch.full((self.runs,), float(alpha),
+                                                                          device=self.device)
         return per_run.sum(), {"actor_loss": per_run.detach(), "actor_q": q.mean(dim=-1).detach(),
                                "entropy": entropy.mean(dim=-1).detach(), "alpha": alphas}, entropy
 
-    def update(self, batch: Batch) -> dict[str, torch.Tensor | float]:
-        """One critic step of every run (and every ``policy_delay``-th an actor step); metrics as 0-d
-        tensors named ``key@run`` (:func:`mop_core.learning.step_metrics.run_key`)."""
-        batch = batch.to(self.device)
-        beta = beta_ood(self.updates, self.config)
+    def _step(self, batch: Batch, beta: float | torch.Tensor, actor_step: bool) -> dict[str, torch.Tensor]:
+        """One critic step of every run, an actor (and temperature) step if ``actor_step``, Polyak
+        averaging; each metric per run, ``[R]``."""
         loss, per_run = self.critic_loss(batch, beta)
         self.critic_optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.critic_optimizer.step()
-        self.updates += 1
-        if self.updates % self.config.policy_delay == 0:
+        if actor_step:
             loss, actor_metrics, entropy = self.actor_loss(batch.observations)
             self.actor_optimizer.zero_grad(set_to_none=True)
             loss.backward()
@@ -243,6 +247,30 @@ class PBRLGroup:
                 self.alpha_optimizer.step()
         soft_update(self.actor_target, self.actor, self.config.actor_tau)
         soft_update(self.critic_target, self.critic, self.config.critic_tau)
+        return per_run
+
+    def _captured_step(self, actor_step: bool):
+        """The step :class:`~mop_core.learning.graphs.GraphedStep` captures: inputs from its buffers."""
+        def step() -> dict[str, torch.Tensor]:
+            b = self.graphed.buffers
+            batch = Batch(b["observations"], b["actions"], b["rewards"], b["next_observations"], b["terminals"])
+            return self._step(batch, b["beta_ood"], actor_step)
+        return step
+
+    def update(self, batch: Batch) -> dict[str, torch.Tensor | float]:
+        """One critic step of every run (and every ``policy_delay``-th an actor step); metrics as 0-d
+        tensors named ``key@run`` (:func:`mop_core.learning.step_metrics.run_key`). On CUDA the step is
+        a replayed CUDA graph (one per variant: critic only, critic and actor)."""
+        batch = batch.to(self.device)
+        beta = beta_ood(self.updates, self.config)
+        actor_step = (self.updates + 1) % self.config.policy_delay == 0
+        if self.graphed is None:
+            per_run = self._step(batch, beta, actor_step)
+        else:
+            inputs = {name: getattr(batch, name) for name in ("observations", "actions", "rewards",
+                                                              "next_observations", "terminals")}
+            per_run = self.graphed(actor_step, inputs | {"beta_ood": torch.full((), beta, device=self.device)})
+        self.updates += 1
         metrics: dict[str, torch.Tensor | float] = {run_key(key, r): value for key, values in per_run.items()
                                                     for r, value in enumerate(values.to(self.device).unbind(0))}
         metrics["beta_ood"] = beta
@@ -289,3 +317,7 @@ class PBRLGroup:
         for generator, saved in zip(self.generators, state["generators"], strict=True):
             generator.set_state(saved)
         self.updates = state["updates"]
+        if self.graphed is not None:  # new optimiser tensors: capture again
+            for optimizer in self.optimizers():
+                keep_capturable(optimizer, self.device)
+            self.graphed.reset()

@@ -28,6 +28,7 @@ from mop_core.agents.pbrl import (
 )
 from mop_core.data.buffer import Batch
 from mop_core.learning.conflict import flat_gradient, pairwise_cosines
+from mop_core.learning.graphs import GraphedStep, capturable_adam, graphs_enabled, keep_capturable
 from mop_core.learning.nn import adam, numpy_policy, soft_update, with_task_id
 
 
@@ -35,7 +36,7 @@ class MultiTaskPBRL:
     """A shared actor over ``tasks`` and one :class:`PessimisticCritic` per task."""
 
     def __init__(self, config: PBRLConfig, tasks: Sequence[str], obs_dim: int, act_dim: int, seed: int,
-                 device: torch.device | str = "cpu"):
+                 device: torch.device | str = "cpu", cuda_graphs: bool | None = None):
         self.config, self.tasks = config, tuple(tasks)
         self.device = torch.device(device)
         torch.manual_seed(seed)
@@ -47,6 +48,15 @@ class MultiTaskPBRL:
         self.temperature = EntropyTemperature(config, self.device)
         self.generator = torch.Generator(self.device).manual_seed(seed)
         self.updates = 0
+        self.graphed = None  # on CUDA: each (task, actor step or not) a replayed CUDA graph
+        if graphs_enabled(self.device, cuda_graphs):
+            self.actor_optimizer = capturable_adam(self.actor.parameters(), config.learning_rate, self.device)
+            for critic in self.critics:
+                critic.optimizer = capturable_adam(critic.critic.parameters(), config.learning_rate, self.device)
+            if self.temperature.optimizer is not None:
+                self.temperature.optimizer = capturable_adam([self.temperature.log_alpha], config.learning_rate,
+                                                             self.device)
+            self.graphed = GraphedStep(self._captured_step, [self.generator])
 
     def optimizers(self) -> list[torch.optim.Optimizer]:
         """Every optimiser: the shared actor's, each task critic's, the entropy temperature's if tuned."""
@@ -62,24 +72,43 @@ class MultiTaskPBRL:
         return lambda obs, repeats=1: policy_actions(actor, with_task_id(obs, task, len(self.tasks)), self.generator,
                                                      repeats)
 
-    def update(self, batch: Batch, task: int) -> dict[str, torch.Tensor | float]:
-        """One PBRL step for ``task`` on ``batch`` (a batch of that task's dataset and rewards)."""
-        if task != self.next_task:
-            raise ValueError(f"task: expected {self.next_task} (tasks alternate), got {task}")
-        batch = batch.to(self.device)
+    def _step(self, batch: Batch, task: int, beta: float | torch.Tensor, actor_now: bool
+              ) -> dict[str, torch.Tensor | float]:
+        """Task ``task``'s critic step, the shared actor's step if ``actor_now``, Polyak averaging."""
         critic = self.critics[task]
-        beta = beta_ood(self.critic_updates[task], self.config)
         metrics = critic.step(batch, self._conditioned(self.actor, task), self._conditioned(self.actor_target, task),
                               beta, self.generator)
-        metrics["beta_ood"] = beta
-        self.critic_updates[task] += 1
-        self.updates += 1
-        if self.critic_updates[task] % self.config.policy_delay == 0:
+        if actor_now:
             actor_input = with_task_id(batch.observations, task, len(self.tasks))
             metrics |= actor_step(self.actor, self.actor_optimizer, self.temperature, batch.observations,
                                   actor_input, critic, self.generator)
         soft_update(self.actor_target, self.actor, self.config.actor_tau)
         critic.soft_update()
+        return metrics
+
+    def _captured_step(self, variant: tuple[int, bool]):
+        def step() -> dict[str, torch.Tensor | float]:
+            b = self.graphed.buffers
+            batch = Batch(b["observations"], b["actions"], b["rewards"], b["next_observations"], b["terminals"])
+            return self._step(batch, variant[0], b["beta_ood"], variant[1])
+        return step
+
+    def update(self, batch: Batch, task: int) -> dict[str, torch.Tensor | float]:
+        """One PBRL step for ``task`` on ``batch`` (a batch of that task's dataset and rewards)."""
+        if task != self.next_task:
+            raise ValueError(f"task: expected {self.next_task} (tasks alternate), got {task}")
+        batch = batch.to(self.device)
+        beta = beta_ood(self.critic_updates[task], self.config)
+        actor_now = (self.critic_updates[task] + 1) % self.config.policy_delay == 0
+        if self.graphed is None:
+            metrics = self._step(batch, task, beta, actor_now)
+        else:
+            inputs = {name: getattr(batch, name) for name in ("observations", "actions", "rewards",
+                                                              "next_observations", "terminals")}
+            metrics = self.graphed((task, actor_now), inputs | {"beta_ood": torch.full((), beta, device=self.device)})
+        metrics["beta_ood"] = beta
+        self.critic_updates[task] += 1
+        self.updates += 1
         return metrics
 
     def gradient_cosines(self, batches: Sequence[Batch], generator: torch.Generator) -> dict[str, float]:
@@ -118,3 +147,7 @@ class MultiTaskPBRL:
         self.temperature.load_state_dict(state["temperature"])
         self.generator.set_state(state["generator"])
         self.updates = state["updates"]
+        if self.graphed is not None:  # new optimiser tensors: capture again
+            for optimizer in self.optimizers():
+                keep_capturable(optimizer, self.device)
+            self.graphed.reset()

@@ -26,6 +26,7 @@ from mop_core.distill.ranking import SYMMETRIC_LOSSES, cross_task_ranking, ranki
 from mop_core.distill.states import TaskStates
 from mop_core.distill.student import Student, StudentGroup
 from mop_core.learning.conflict import flat_gradient, pairwise_cosines
+from mop_core.learning.graphs import GraphedStep, capturable_adam, graphs_enabled, keep_capturable
 from mop_core.learning.nn import EnsembleCritic, adam, with_task_id
 from mop_core.learning.schedule import set_learning_rate
 from mop_core.learning.step_metrics import run_key
@@ -62,7 +63,7 @@ class Distiller:
 
     def __init__(self, config: DistillConfig, targets: Sequence[Sequence[TaskStates]], obs_dim: int, act_dim: int,
                  seeds: Sequence[int], critics: Sequence[EnsembleCritic] | None = None,
-                 device: torch.device | str = "cpu", total_steps: int = 1):
+                 device: torch.device | str = "cpu", total_steps: int = 1, cuda_graphs: bool | None = None):
         if len(targets) != len(seeds) or not seeds:
             raise ValueError(f"targets: expected one list of task states per seed ({len(seeds)}), got {len(targets)}")
         self.config, self.device, self.targets = config, torch.device(device), [list(t) for t in targets]
@@ -87,10 +88,16 @@ class Distiller:
                                     gaussian=self.spec.gaussian_student))
         self.seeds = list(seeds)
         self.group = StudentGroup(students).to(self.device)
-        self.optimizer = adam(self.group.parameters(), config.learning_rate)
+        # on CUDA one update (draws and every optimiser step included) is a replayed CUDA graph
+        # (mop_core.learning.graphs); eager elsewhere
+        captured = graphs_enabled(self.device, cuda_graphs)
+        self.optimizer = (capturable_adam(self.group.parameters(), config.learning_rate, self.device) if captured
+                          else adam(self.group.parameters(), config.learning_rate))
         # state indices drawn on the device the states lie on (no host-to-device copy per step on a GPU)
         self.generators = [torch.Generator(self.device).manual_seed(seed) for seed in seeds]
         self.updates = 0
+        self._task_ids: dict[tuple, torch.Tensor] = {}  # each row's task index, per (tasks, sizes): made once
+        self.graphed = GraphedStep(lambda _variant: self._train_step, self.generators) if captured else None
 
     @property
     def runs(self) -> int:
@@ -127,6 +134,8 @@ class Distiller:
             base, states=torch.cat([base.states, added[0]]), teacher_actions=torch.cat([base.teacher_actions,
                                                                                          added[1]]),
             teacher_std=std, source=base.source | {"aggregated_states": len(added[0])})
+        if self.graphed is not None:  # the captured step read the old states: capture again
+            self.graphed.reset()
 
     def loss(self, rows: Sequence[Sequence[torch.Tensor]], tasks: Sequence[int] | None = None,
              regularise: bool = True) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
@@ -145,7 +154,7 @@ class Distiller:
                                 for r, run_rows in enumerate(rows)])
 
         obs, teacher_actions = gather("states"), gather("teacher_actions")
-        task_ids = torch.tensor(tasks, device=self.device).repeat_interleave(torch.tensor(sizes, device=self.device))
+        task_ids = self._row_tasks(tasks, sizes)
         teacher_std = gather("teacher_std") if self.spec.teacher_actor == "gaussian" else None
         per_state, actions = self.spec.per_state(LossInputs(self.group, obs, task_ids, teacher_actions, teacher_std,
                                                             tasks, sizes, self.critics, cfg.q_reduction))
@@ -164,6 +173,14 @@ class Distiller:
                     metrics[run_key(f"loss_{self.tasks[t]}", r)] = part.mean()
                     metrics[run_key(f"action_mse_{self.tasks[t]}", r)] = mse.mean()
         return run_losses.sum(), metrics
+
+    def _row_tasks(self, tasks: Sequence[int], sizes: Sequence[int]) -> torch.Tensor:
+        """Each row's task index on the device, made once per (tasks, sizes) on the host: a repeat count
+        read from the device would be a host round trip per update."""
+        key = (tuple(tasks), tuple(sizes))
+        if key not in self._task_ids:
+            self._task_ids[key] = torch.repeat_interleave(torch.tensor(tasks), torch.tensor(sizes)).to(self.device)
+        return self._task_ids[key]
 
     def ranking_term(self, obs: torch.Tensor, sizes: Sequence[int]) -> torch.Tensor:
         """The ranking regulariser per run ``[R]`` (:class:`RankingConfig`) on the first
@@ -204,22 +221,30 @@ class Distiller:
     def _draw(self, tasks: Sequence[int]) -> list[list[torch.Tensor]]:
         return [[self._rows(r, t, self.config.batch_size) for t in tasks] for r in range(self.runs)]
 
-    def update(self) -> dict[str, torch.Tensor | float]:
-        lr = learning_rate_at(self.config, self.updates, self.total_steps)
-        set_learning_rate([self.optimizer], lr)
+    def _train_step(self) -> dict[str, torch.Tensor]:
+        """Draws, loss and Adam step(s) of one update (one over all tasks, or one per task with
+        ``step_per_task``); per-run metrics as 0-d tensors."""
         tasks = range(len(self.tasks))
-        if self.config.step_per_task:
-            metrics = {}
-            for t in tasks:
-                loss, task_metrics = self.loss(self._draw([t]), [t])
-                self._step(loss)
-                metrics |= {k: v for k, v in task_metrics.items() if not k.startswith("loss@")}
-            for r in range(self.runs):
-                metrics[run_key("loss", r)] = sum(metrics[run_key(f"loss_{task}", r)]
-                                                  for task in self.tasks) / len(self.tasks)
-        else:
+        if not self.config.step_per_task:
             loss, metrics = self.loss(self._draw(tasks))
             self._step(loss)
+            return metrics
+        metrics = {}
+        for t in tasks:
+            loss, task_metrics = self.loss(self._draw([t]), [t])
+            self._step(loss)
+            metrics |= {k: v for k, v in task_metrics.items() if not k.startswith("loss@")}
+        for r in range(self.runs):
+            metrics[run_key("loss", r)] = sum(metrics[run_key(f"loss_{task}", r)]
+                                              for task in self.tasks) / len(self.tasks)
+        return metrics
+
+    def update(self) -> dict[str, torch.Tensor | float]:
+        """One update of every run; on CUDA a replayed CUDA graph (:class:`~mop_core.learning.graphs.GraphedStep`,
+        the learning rate a tensor it reads), eager elsewhere."""
+        lr = learning_rate_at(self.config, self.updates, self.total_steps)
+        set_learning_rate([self.optimizer], lr)
+        metrics = self._train_step() if self.graphed is None else self.graphed(0, {})
         metrics["learning_rate"] = lr
         self.updates += 1
         return metrics
@@ -232,6 +257,9 @@ class Distiller:
     def load_state_dict(self, state: dict) -> None:
         self.group.load_state_dict(state["group"])
         self.optimizer.load_state_dict(state["optimizer"])
+        if self.graphed is not None:  # new optimiser tensors: capture again
+            keep_capturable(self.optimizer, self.device)
+            self.graphed.reset()
         for generator, saved in zip(self.generators, state["generators"], strict=True):
             generator.set_state(saved)
         self.updates = state["updates"]

@@ -24,10 +24,15 @@ def scheduled_rate(base: float, schedule: str, step: int, total_steps: int) -> f
 
 
 def set_learning_rate(optimizers, lr: float) -> None:
-    """Every parameter group of ``optimizers`` at learning rate ``lr``."""
+    """Every parameter group of ``optimizers`` at learning rate ``lr``; a tensor rate (a captured
+    step's, :func:`mop_core.learning.graphs.capturable_adam`) is filled in place, so the replayed
+    graph reads it."""
     for optimizer in optimizers:
         for group in optimizer.param_groups:
-            group["lr"] = lr
+            if hasattr(group["lr"], "fill_"):  # a torch.Tensor
+                group["lr"].fill_(lr)
+            else:
+                group["lr"] = lr
 
 
 def due(step: int, every: int, last: int) -> bool:
