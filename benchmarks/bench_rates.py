@@ -3,9 +3,11 @@ into the profile's cost.
 
 Measures in one process (after a warm-up; on CUDA every timed block ends with a synchronize):
 - TD3 updates/s at ``collect.td3`` (the collect stage's learner; its 1:1 env/update schedule adds env steps);
-- PBRL updates/s per actor type at ``train_teachers.pbrl`` (a teacher, and each task's update of the
-  naive multi-task baseline), and the group updates/s of R = 1 and R = 8 teachers trained as one
+- PBRL updates/s per actor type at ``train_teachers.pbrl`` (a teacher), the naive multi-task baseline's
+  updates/s (one task's step each), and the group updates/s of R = 1 and R = 8 teachers trained as one
   vectorised model (the train_teachers stage trains every task and seed of a (level, actor) as one);
+- on CUDA these groups replay their updates as CUDA graphs (mop_core.learning.graphs); R = 8 is also
+  timed eager, and the ratio printed;
 - student updates/s for a group of R = 1 and R = 8 students (the distill stage trains every seed of a
   (loss, pairing) as one group) at ``distill``, MSE and Q losses, 2 tasks: the group's updates/s, so
   R runs of 8 cost R / (8 * rate_8) seconds per step each;
@@ -35,6 +37,7 @@ from bench_pbrl import pbrl_config, random_batch
 
 from mop_core.agents.pbrl import PBRL
 from mop_core.agents.pbrl_group import PBRLGroup, stack_batches
+from mop_core.agents.pbrl_multitask import MultiTaskPBRL
 from mop_core.agents.td3 import TD3, TD3Config
 from mop_core.config import from_mapping
 from mop_core.distill.checkpoint import student_policy
@@ -83,20 +86,32 @@ def pbrl_rates(profile: Path, device: torch.device, count: int) -> dict[str, flo
     return rates
 
 
-def pbrl_group_rates(profile: Path, device: torch.device, count: int) -> dict[str, dict[str, float]]:
+def pbrl_group_rates(profile: Path, device: torch.device, count: int, sizes=GROUP_SIZES,
+                     cuda_graphs: bool | None = None) -> dict[str, dict[str, float]]:
+    """Group updates/s per actor type and group size (on CUDA: replayed CUDA graphs unless ``cuda_graphs``
+    is False; the warm-up block holds the capture)."""
     base = pbrl_config(profile)
     rates: dict[str, dict[str, float]] = {}
     for actor in ("deterministic", "gaussian"):
         config = replace(base, actor=actor)
         rates[actor] = {}
-        for runs in (1, 8):
-            group = PBRLGroup(config, 24, 6, list(range(runs)), device)
+        for runs in sizes:
+            group = PBRLGroup(config, 24, 6, list(range(runs)), device, cuda_graphs)
             batch = stack_batches([random_batch(config.batch_size, seed) for seed in range(runs)]).to(device)
             rates[actor][str(runs)] = per_second(lambda: group.update(batch), count, device)
     return rates
 
 
-def student_rates(profile: Path, params: dict, device: torch.device, count: int) -> dict[str, dict[str, float]]:
+def multitask_rate(profile: Path, device: torch.device, count: int, cuda_graphs: bool | None = None) -> float:
+    """Updates/s of the naive multi-task baseline (one task's PBRL step per update, tasks alternating; 2
+    tasks, deterministic): on CUDA replayed CUDA graphs unless ``cuda_graphs`` is False."""
+    agent = MultiTaskPBRL(pbrl_config(profile), ("stand", "walk"), 24, 6, 0, device, cuda_graphs)
+    batch = random_batch(agent.config.batch_size).to(device)
+    return per_second(lambda: agent.update(batch, agent.next_task), count, device)
+
+
+def student_rates(profile: Path, params: dict, device: torch.device, count: int, sizes=GROUP_SIZES,
+                  cuda_graphs: bool | None = None) -> dict[str, dict[str, float]]:
     config, teacher_sizes, _ = distill_profile(profile)
     states = 100_000
     g = torch.Generator().manual_seed(0)
@@ -108,9 +123,9 @@ def student_rates(profile: Path, params: dict, device: torch.device, count: int)
     for loss in ("mse", "q"):
         loss_config = replace(config, loss=loss)
         rates[loss] = {}
-        for runs in GROUP_SIZES:
+        for runs in sizes:
             group = Distiller(loss_config, [targets] * runs, 24, 6, list(range(runs)),
-                              critics if loss == "q" else None, device)
+                              critics if loss == "q" else None, device, cuda_graphs=cuda_graphs)
             rates[loss][str(runs)] = per_second(group.update, count, device)
     return rates
 
@@ -166,12 +181,25 @@ def main() -> None:
               "td3_updates_per_second": td3_rate(params, device, count),
               "pbrl_updates_per_second": pbrl_rates(profile, device, count),
               "pbrl_group_updates_per_second": pbrl_group_rates(profile, device, count),
+              "pbrl_multitask_updates_per_second": multitask_rate(profile, device, count),
               "student_group_updates_per_second": student_rates(profile, params, device, count),
               "rollout_control_steps_per_second": rollout_rate(profile, device),
               "single_env_control_steps_per_second": rollout_rate(profile, device, envs=1),
               "parallel_rollout_workers": available_cores(),
               "parallel_rollout_control_steps_per_second": parallel_rollout_rate(profile, available_cores())}
+    if device.type == "cuda":  # what the captured updates buy: the same groups eager (R = 8)
+        result["pbrl_group_eager_updates_per_second"] = pbrl_group_rates(profile, device, count, (8,), False)
+        result["student_group_eager_updates_per_second"] = student_rates(profile, params, device, count, (8,), False)
+        result["pbrl_multitask_eager_updates_per_second"] = multitask_rate(profile, device, count, False)
     print(json.dumps(result, indent=1))
+    for name in ("pbrl_group", "student_group"):
+        for kind, eager in result.get(f"{name}_eager_updates_per_second", {}).items():
+            captured = result[f"{name}_updates_per_second"][kind]["8"]
+            print(f"{name} {kind} R = 8: CUDA graphs {captured:.0f} updates/s, eager {eager['8']:.0f}: "
+                  f"{captured / eager['8']:.2f}x")
+    if "pbrl_multitask_eager_updates_per_second" in result:
+        captured, eager = result["pbrl_multitask_updates_per_second"], result["pbrl_multitask_eager_updates_per_second"]
+        print(f"multi-task baseline: CUDA graphs {captured:.0f} updates/s, eager {eager:.0f}: {captured / eager:.2f}x")
     ratio = result["parallel_rollout_control_steps_per_second"] / result["rollout_control_steps_per_second"]
     print(f"rollouts over {result['parallel_rollout_workers']} processes: {ratio:.2f}x one process's batched rate")
     if args.out:

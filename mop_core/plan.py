@@ -12,14 +12,17 @@ evaluations, datasets, final evaluations), and divides each by its rate:
 
 Assumptions, printed with the table: the runs of a stage execute one after another on one device
 (dvc repro runs one stage at a time; the collect stage's task processes and a distill entry's seeds
-are the exceptions it models); a student group of R seeds costs the time per update interpolated
-between the measured R = 1 and R = 8; the KL loss costs what MSE does (the same network, no critic);
+are the exceptions it models); a student group of R seeds, and a train_teachers or
+train_relabelled_teachers entry's vectorised group of R teachers, costs the time per update
+interpolated between the measured R = 1 and R = 8 (on CUDA: updates replayed as CUDA graphs; a rates
+file without group rates: R single teachers); the multi-task baseline updates at its own measured rate
+where the rates file has it (else a single teacher's); the KL loss costs what MSE does (the same network, no critic);
 collect steps one walker per TD3 update at the single-environment rate; the common-structure students
 (distill_width, distill_ranking) cost what plain MSE students do (no rate is measured for other widths
 or for the ranking regulariser: a lower bound for width 512 and for the regulariser) and a single-task
 student (distill_single) its task's share of a multi-task student's update; a data-sharing
-teacher (train_relabelled_teachers) costs what a deterministic teacher does (its data is larger, its
-updates are not) and a data-sharing or substituted-set student (distill_sharing, distill_substitute)
+teacher (train_relabelled_teachers) costs what a deterministic teacher of a group does (its data is
+larger, its updates are not) and a data-sharing or substituted-set student (distill_sharing, distill_substitute)
 what a plain MSE student does; the state-shift students (distill_composed, distill_size,
 distill_corrected) too, whatever their width (a lower bound for width 512; a reweighted student's
 classifier is left out, DAgger's rollouts are counted), and compose rolls out its pools at the rollout rate, its
@@ -59,6 +62,8 @@ class Rates:
     single_env: float  # control steps/s, one walker stepped with one policy call per step
     parallel_rollout: float | None = None  # control steps/s of eval-style jobs over every core's process
     cores: int = 1  # the processes parallel_rollout ran in: what ``workers: auto`` means on the device machine
+    pbrl_group: Mapping[str, Mapping[int, float]] | None = None  # actor type -> group size R -> group updates/s
+    multitask: float | None = None  # updates/s of the naive multi-task baseline (one task's step each)
 
     @classmethod
     def from_json(cls, record: Mapping[str, Any]) -> "Rates":
@@ -69,7 +74,10 @@ class Rates:
                    float(record["rollout_control_steps_per_second"]),
                    float(record["single_env_control_steps_per_second"]),
                    record.get("parallel_rollout_control_steps_per_second"),  # absent from older rates files
-                   int(record.get("parallel_rollout_workers", 1)))
+                   int(record.get("parallel_rollout_workers", 1)),
+                   {actor: {int(r): float(v) for r, v in by_r.items()}
+                    for actor, by_r in record.get("pbrl_group_updates_per_second", {}).items()} or None,
+                   record.get("pbrl_multitask_updates_per_second"))
 
     def rollout_over(self, workers: int | str) -> float:
         """Control steps/s of a stage's rollout jobs in ``workers`` processes: the all-cores rate where the
@@ -79,16 +87,28 @@ class Rates:
 
     def student_seconds_per_update(self, loss: str, runs: int) -> float:
         """Seconds per update of a group of ``runs`` students: interpolated between the measured sizes."""
-        by_r = self.student["mse" if loss == "kl" else loss]
-        sizes = sorted(by_r)
-        if runs in by_r:
-            return 1.0 / by_r[runs]
-        low = max([r for r in sizes if r < runs], default=sizes[0])
-        high = min([r for r in sizes if r > runs], default=sizes[-1])
-        if low == high:  # beyond the measured sizes: linear in the runs from the nearest one
-            return runs / low / by_r[low]
-        t_low, t_high = 1.0 / by_r[low], 1.0 / by_r[high]
-        return t_low + (t_high - t_low) * (runs - low) / (high - low)
+        return _group_seconds(self.student["mse" if loss == "kl" else loss], runs)
+
+    def teacher_seconds_per_update(self, actor: str, runs: int) -> float:
+        """Seconds per update of a vectorised group of ``runs`` PBRL teachers (a train_teachers entry):
+        interpolated between the measured group sizes; ``runs`` single updates where no group was measured."""
+        if not self.pbrl_group or actor not in self.pbrl_group:
+            return runs / self.pbrl[actor]
+        return _group_seconds(self.pbrl_group[actor], runs)
+
+
+def _group_seconds(by_r: Mapping[int, float], runs: int) -> float:
+    """Seconds per update of a group of ``runs``, from group updates/s measured at the sizes of ``by_r``:
+    linear between the nearest measured sizes, and in the runs beyond them."""
+    sizes = sorted(by_r)
+    if runs in by_r:
+        return 1.0 / by_r[runs]
+    low = max([r for r in sizes if r < runs], default=sizes[0])
+    high = min([r for r in sizes if r > runs], default=sizes[-1])
+    if low == high:  # beyond the measured sizes: linear in the runs from the nearest one
+        return runs / low / by_r[low]
+    t_low, t_high = 1.0 / by_r[low], 1.0 / by_r[high]
+    return t_low + (t_high - t_low) * (runs - low) / (high - low)
 
 
 def teacher_schedule(params: Mapping[str, Any], level: str) -> dict:
@@ -163,21 +183,29 @@ def stage_hours(params: Mapping[str, Any], rates: Rates) -> dict[str, tuple[int,
     out["collect"] = (len(tasks), waves * per_task / 3600)
 
     t_sched = lambda level: teacher_schedule(params, level)  # noqa: E731
-    out["train_teachers"] = _hours(catalogue.teachers, lambda run: (
-        t_sched(run.level)["steps"] / rates.pbrl[run.actor]
-        + _evaluation_steps(t_sched(run.level), length) / rates.rollout))
+    entries: dict[tuple[str, str], list] = {}  # a train_teachers entry: one vectorised group per (level, actor)
+    for run in catalogue.teachers:
+        entries.setdefault((run.level, run.actor), []).append(run)
+    out["train_teachers"] = (len(catalogue.teachers), sum(
+        t_sched(level)["steps"] * rates.teacher_seconds_per_update(actor, len(runs))
+        + len(runs) * _evaluation_steps(t_sched(level), length) / rates.rollout
+        for (level, actor), runs in entries.items()) / 3600)
     out["train_multitask"] = _hours(catalogue.multitask, lambda run: (
-        len(run.tasks) * t_sched(run.level)["steps"] / rates.pbrl["deterministic"]
+        len(run.tasks) * t_sched(run.level)["steps"] / (rates.multitask or rates.pbrl["deterministic"])
         + _evaluation_steps(t_sched(run.level), length, len(run.tasks)) / rates.rollout))
     students = {stage: (sum(map(len, entries.values())), sum(_entry_seconds(runs, params, len(tasks), rates)
                                                               for runs in entries.values()) / 3600)
                 for stage, entries in catalogue.distill_stages().items()}
     place = lambda stages: {stage: students.pop(stage, (0, 0.0)) for stage in stages}  # noqa: E731
     out |= place(STUDENT_STAGES[:4])
-    # each a deterministic teacher's cost
-    out["train_relabelled_teachers"] = _hours(catalogue.relabelled_teachers, lambda run: (
-        t_sched(run.level)["steps"] / rates.pbrl["deterministic"]
-        + _evaluation_steps(t_sched(run.level), length) / rates.rollout))
+    # each a deterministic teacher's cost, one vectorised group per (level, kind) entry
+    shared: dict[tuple[str, str], list] = {}
+    for run in catalogue.relabelled_teachers:
+        shared.setdefault((run.level, run.sharing), []).append(run)
+    out["train_relabelled_teachers"] = (len(catalogue.relabelled_teachers), sum(
+        t_sched(level)["steps"] * rates.teacher_seconds_per_update("deterministic", len(runs))
+        + len(runs) * _evaluation_steps(t_sched(level), length) / rates.rollout
+        for (level, _), runs in shared.items()) / 3600)
     out |= place(STUDENT_STAGES[4:6])
     out["compose"] = _compose_hours(params, rates)
     out |= place(STUDENT_STAGES[6:]) | students  # a family's stage not placed here: after the others

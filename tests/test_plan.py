@@ -109,3 +109,24 @@ def test_rollouts_over_every_core_cost_eval_and_shared_computation_their_all_cor
     assert Rates.from_json(record).parallel_rollout is None  # an older rates file
     assert Rates.from_json(record | {"parallel_rollout_control_steps_per_second": 80,
                                      "parallel_rollout_workers": 16}).rollout_over("auto") == 80
+
+
+def test_a_teacher_entry_costs_its_vectorised_group_and_the_baseline_its_own_rate():
+    grouped = Rates(**{**RATES.__dict__, "pbrl_group": {"deterministic": {1: 60.0, 8: 30.0},
+                                                       "gaussian": {1: 50.0, 8: 20.0}}, "multitask": 75.0})
+    assert grouped.teacher_seconds_per_update("deterministic", 8) == pytest.approx(1 / 30)
+    assert grouped.teacher_seconds_per_update("gaussian", 4) == pytest.approx(1 / 50 + (1 / 20 - 1 / 50) * 3 / 7)
+    assert RATES.teacher_seconds_per_update("gaussian", 6) == pytest.approx(6 / 40)  # no group rates: R singles
+    teachers = THESIS["train_teachers"]
+    runs = len(THESIS["study"]["tasks"]) * len(teachers["seeds"])  # one entry per (level, actor)
+    steps, sched = teachers["schedule"]["steps"], teachers["schedule"]
+    rollout = 1000 * (steps // sched["eval_every"] * sched["eval_episodes"] + sched["final_eval_episodes"]) / 5000.0
+    per_level = (steps * grouped.teacher_seconds_per_update("deterministic", runs) + runs * rollout
+                 + steps * grouped.teacher_seconds_per_update("gaussian", runs) + runs * rollout)
+    hours, plain = stage_hours(THESIS, grouped), stage_hours(THESIS, RATES)
+    assert hours["train_teachers"] == (2 * runs * len(THESIS["study"]["levels"]),
+                                       pytest.approx(len(THESIS["study"]["levels"]) * per_level / 3600))
+    # the multi-task baseline at its own rate (75/s against a single teacher's 50/s): its updates cost 2/3
+    updates = plain["train_multitask"][1] - stage_hours(THESIS, Rates(**{**RATES.__dict__, "pbrl": {
+        "deterministic": 1e12, "gaussian": 1e12}}))["train_multitask"][1]
+    assert hours["train_multitask"][1] == pytest.approx(plain["train_multitask"][1] - updates / 3)
