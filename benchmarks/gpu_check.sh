@@ -14,7 +14,9 @@
 # and send .gpu along; the script unpacks it when it is there. Tried on CPU first with
 #   MOP_GPU_CHECK_DEVICE=cpu MOP_GPU_CHECK_TESTS=tests/test_distill.py MOP_GPU_CHECK_RATES_ARGS=--quick \
 #   MOP_GPU_CHECK_SCALE=0.0001 bash benchmarks/gpu_check.sh
-# Time limits per part: MOP_GPU_CHECK_LIMITS="rates repro tests" seconds (default "60 240 280"). Measured on an
+# Time limits per part: MOP_GPU_CHECK_LIMITS="rates repro tests" seconds (default "60 240 280"). The parts
+# run, in this order: MOP_GPU_CHECK_PARTS (default "rates repro tests"; e.g. "tests rates" checks the captured
+# updates against eager first, then times them). Measured on an
 # H200 (2026-11-27): rates 34 s; the shortened repro ran collect, teachers and the baseline in ~90 s, its rollouts
 # (~1-1.6k control steps/s on that machine) dominate the rest; the suite on CUDA took more than 290 s (the
 # tiny dvc repro tests), the rest of it 50 s with 12 workers. At most 8 files come back from the machine: keep
@@ -27,6 +29,7 @@ DEVICE=${MOP_GPU_CHECK_DEVICE:-cuda}
 TESTS=${MOP_GPU_CHECK_TESTS:-tests}
 read -r LIMIT_RATES LIMIT_REPRO LIMIT_TESTS <<< "${MOP_GPU_CHECK_LIMITS:-60 240 280}"
 SCALE=${MOP_GPU_CHECK_SCALE:-0.001}
+PARTS=${MOP_GPU_CHECK_PARTS:-rates repro tests}
 mkdir -p "$OUT"
 started=$(date +%s)
 stamp() { echo "[gpu_check +$(( $(date +%s) - started ))s] $*"; }
@@ -55,37 +58,46 @@ git config --global user.email >/dev/null || git config --global user.email gpu-
 stamp "environment ready"
 
 # ---- 1. rates at the thesis sizes and the thesis profile's estimated cost ------------------------------
-stamp "rates at the thesis profile's sizes"
-(cd benchmarks && timeout "$LIMIT_RATES" "$PY" bench_rates.py --profile ../profiles/thesis.yaml --device "$DEVICE" \
-  ${MOP_GPU_CHECK_RATES_ARGS:-} --out "$OUT/rates.json" > "$OUT/rates.log" 2>&1) || echo "rates failed: see rates.log"
-if [ -f "$OUT/rates.json" ]; then
-  "$PY" -m mop_core.plan profiles/thesis.yaml --rates "$OUT/rates.json" | tee "$OUT/plan.md"
-fi
+part_rates() {
+  stamp "rates at the thesis profile's sizes"
+  (cd benchmarks && timeout "$LIMIT_RATES" "$PY" bench_rates.py --profile ../profiles/thesis.yaml --device "$DEVICE" \
+    ${MOP_GPU_CHECK_RATES_ARGS:-} --out "$OUT/rates.json" > "$OUT/rates.log" 2>&1) || echo "rates failed: see rates.log"
+  if [ -f "$OUT/rates.json" ]; then
+    "$PY" -m mop_core.plan profiles/thesis.yaml --rates "$OUT/rates.json" | tee "$OUT/plan.md"
+  fi
+}
 
 # ---- 2. a shortened thesis-profile dvc repro ----------------------------------------------------------
-stamp "shortened thesis profile (scale $SCALE, one level): dvc repro"
-SHORT=/tmp/mop_short
-rm -rf "$SHORT" && mkdir -p "$SHORT"
-"$PY" -c "import sys; sys.path.insert(0, 'scripts'); from bad_inputs import copy_project; from pathlib import Path; \
-copy_project(Path('.'), Path('$SHORT'))"
-"$PY" -m mop_core.plan profiles/thesis.yaml --scale "$SCALE" --one-level --max-evaluations 2 --out "$SHORT/params.yaml"
-sed -i "s/^  device: .*/  device: $DEVICE/" "$SHORT/params.yaml"
-if [ -f "$OUT/rates.json" ]; then
-  "$PY" -m mop_core.plan "$SHORT/params.yaml" --rates "$OUT/rates.json" > "$OUT/short_plan.md"
-fi
-(cd "$SHORT" && git init -q && git add -A && git commit -qm short && \
-  timeout "$LIMIT_REPRO" dvc repro > "$OUT/repro.log" 2>&1; echo "dvc repro exit $?" >> "$OUT/repro.log")
-tail -n 5 "$OUT/repro.log"
-(cd "$SHORT" && "$PY" -m mop_core.timings > "$OUT/short_timings.md" 2>&1)
-cat "$OUT/short_timings.md"
+part_repro() {
+  stamp "shortened thesis profile (scale $SCALE, one level): dvc repro"
+  SHORT=/tmp/mop_short
+  rm -rf "$SHORT" && mkdir -p "$SHORT"
+  "$PY" -c "import sys; sys.path.insert(0, 'scripts'); from bad_inputs import copy_project; from pathlib import Path; \
+  copy_project(Path('.'), Path('$SHORT'))"
+  "$PY" -m mop_core.plan profiles/thesis.yaml --scale "$SCALE" --one-level --max-evaluations 2 --out "$SHORT/params.yaml"
+  sed -i "s/^  device: .*/  device: $DEVICE/" "$SHORT/params.yaml"
+  if [ -f "$OUT/rates.json" ]; then
+    "$PY" -m mop_core.plan "$SHORT/params.yaml" --rates "$OUT/rates.json" > "$OUT/short_plan.md"
+  fi
+  (cd "$SHORT" && git init -q && git add -A && git commit -qm short && \
+    timeout "$LIMIT_REPRO" dvc repro > "$OUT/repro.log" 2>&1; echo "dvc repro exit $?" >> "$OUT/repro.log")
+  tail -n 5 "$OUT/repro.log"
+  (cd "$SHORT" && "$PY" -m mop_core.timings > "$OUT/short_timings.md" 2>&1)
+  cat "$OUT/short_timings.md"
+}
+
 # ---- 3. the test suite on the device (last: the part most likely to run long) -------------------------
-workers=$(( $(nproc) > 8 ? 8 : $(nproc) ))
-parallel=""
-"$PY" -c "import xdist" 2>/dev/null && parallel="-n $workers --dist loadfile"  # pytest-xdist, where installed
-stamp "tests ($TESTS) on $DEVICE ${parallel:-in one process}"
-MOP_TEST_DEVICE=$DEVICE timeout "$LIMIT_TESTS" "$PY" -m pytest -q -p no:cacheprovider $parallel $TESTS \
-  > "$OUT/tests.log" 2>&1
-echo "tests exit $?" >> "$OUT/tests.log"
-tail -n 15 "$OUT/tests.log"
+part_tests() {
+  workers=$(( $(nproc) > 8 ? 8 : $(nproc) ))
+  parallel=""
+  "$PY" -c "import xdist" 2>/dev/null && parallel="-n $workers --dist loadfile"  # pytest-xdist, where installed
+  stamp "tests ($TESTS) on $DEVICE ${parallel:-in one process}"
+  MOP_TEST_DEVICE=$DEVICE timeout "$LIMIT_TESTS" "$PY" -m pytest -q -p no:cacheprovider $parallel $TESTS \
+    > "$OUT/tests.log" 2>&1
+  echo "tests exit $?" >> "$OUT/tests.log"
+  tail -n 15 "$OUT/tests.log"
+}
+
+for part in $PARTS; do "part_$part"; done
 
 stamp "done"

@@ -134,6 +134,11 @@ def previous_sections() -> dict[str, str]:
 GPU_FILES = ("gpu.txt", "tests.log", "rates.json", "plan.md", "short_plan.md", "short_timings.md", "repro.log")
 
 
+def gpu_name(directory: Path) -> str:
+    """A gpu section's name: ``gpu`` for benchmarks/gpu, ``gpu_<folder>`` for a dated run under it."""
+    return "gpu" if directory.name == "gpu" else "gpu_" + re.sub(r"\W", "_", directory.name)
+
+
 def gpu_section(directory: Path) -> str:
     """The GPU section from the files ``benchmarks/gpu_check.sh`` wrote (it runs on a lent GPU machine,
     not here): the card, the test suite's result on CUDA, the rates at the thesis sizes, the thesis
@@ -145,29 +150,36 @@ def gpu_section(directory: Path) -> str:
         lines = path.read_text().rstrip().splitlines()
         return "\n".join(lines[-tail:] if tail else lines)
 
-    card = read("gpu.txt")
-    return "\n".join([
-        "<!-- bench:gpu -->", "## gpu", "",
+    card, name, where = read("gpu.txt"), gpu_name(directory), directory.relative_to(ROOT).as_posix()
+    title = "gpu" if name == "gpu" else f"gpu ({directory.name})"
+    parts = [
+        f"<!-- bench:{name} -->", f"## {title}", "",
         "`bash benchmarks/gpu_check.sh` on a lent GPU machine (the script says what each part does), its",
-        f"files copied to `{directory.relative_to(ROOT).as_posix()}/` and rendered here by "
-        f"`python benchmarks/write_readme.py --gpu {directory.relative_to(ROOT).as_posix()}`.", "",
+        f"files copied to `{where}/` and rendered here by `python benchmarks/write_readme.py --gpu {where}`.", "",
         "Card (nvidia-smi) and software:", "", "```", card, "```", "",
-        "The test suite with `MOP_TEST_DEVICE=cuda` (learner tests and the tiny profile's `dvc repro` on CUDA), "
-        "last lines:", "", "```", read("tests.log", 20), "```", "",
+        "The tests with `MOP_TEST_DEVICE=cuda` (the learners, and where the run named them the tiny profile's "
+        "`dvc repro`, on CUDA), last lines:", "", "```", read("tests.log", 20), "```", ""]
+    if (directory / "rates.log").is_file():  # what the captured updates buy: bench_rates' printed ratios
+        ratios = [line for line in read("rates.log").splitlines() if line.endswith("x") or "x one" in line]
+        parts += ["Measured in the same run, CUDA graphs against eager and rollouts over every core "
+                  "(`rates.log`):", "", "```", *ratios, "```", ""]
+    parts += [
         "Rates at the thesis profile's sizes (`benchmarks/bench_rates.py`; student rates are group updates/s "
         "for R runs):", "", "```json", read("rates.json"), "```", "",
-        "The thesis profile's estimated cost (`python -m mop_core.plan profiles/thesis.yaml --rates "
-        "benchmarks/gpu/rates.json`: the schedules times these rates; the script writes it as plan.md):", "",
-        read("plan.md"), "",
-        "The shortened thesis profile (every schedule at 0.1%, one level; `repro.log` beside these files), measured "
-        "stage times:", "",
-        read("short_timings.md"), "",
-        "and what `mop_core.plan` estimates for that shortened profile from the rates "
-        "above (per-run process "
-        "start-up and file writes are not in the estimate; a stage missing above did not finish in the time limit):",
-        "",
-        read("short_plan.md"), "",
-        "<!-- /bench:gpu -->"])
+        f"The thesis profile's estimated cost (`python -m mop_core.plan profiles/thesis.yaml --rates "
+        f"{where}/rates.json`: the schedules times these rates; the script writes it as plan.md):", "",
+        read("plan.md"), ""]
+    if (directory / "short_timings.md").is_file():
+        parts += [
+            "The shortened thesis profile (every schedule at 0.1%, one level; `repro.log` beside these files), "
+            "measured stage times:", "",
+            read("short_timings.md"), "",
+            "and what `mop_core.plan` estimates for that shortened profile from the rates "
+            "above (per-run process "
+            "start-up and file writes are not in the estimate; a stage missing above did not finish in the time "
+            "limit):", "",
+            read("short_plan.md"), ""]
+    return "\n".join(parts + [f"<!-- /bench:{name} -->"])
 
 
 def header(quick: bool, only: list[str] | None) -> str:
@@ -189,7 +201,7 @@ def header(quick: bool, only: list[str] | None) -> str:
     if quick:
         lines += ["", "**This file was written with `--quick`**: see each section's mode."]
     if only:
-        lines += ["", f"Last written with `--only {' '.join(only)}`: the other sections are from earlier runs "
+        lines += ["", f"Last written with `{' '.join(only)}`: the other sections are from earlier runs "
                       "(each gives its own date and commit)."]
     return "\n".join(lines)
 
@@ -202,8 +214,10 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2,
                         help="torch threads of the scripts that take --threads (default 2, the stages' threads)")
     parser.add_argument("--timeout", type=float, default=1800, help="seconds allowed per script (default 1800)")
-    parser.add_argument("--gpu", type=Path, help="render the gpu section from benchmarks/gpu_check.sh's files in "
-                                                 "this folder (and run nothing else unless --only names it)")
+    parser.add_argument("--gpu", type=Path, help="render a gpu section from benchmarks/gpu_check.sh's files in "
+                                                 "this folder (and run nothing else unless --only names it): "
+                                                 "benchmarks/gpu is section gpu, benchmarks/gpu/<date> section "
+                                                 "gpu_<date>, after it")
     args = parser.parse_args()
     started = time.perf_counter()
     sections = previous_sections() if args.only or args.gpu else {}
@@ -211,10 +225,11 @@ def main() -> None:
         if (args.only is None and args.gpu is None) or bench.name in (args.only or []):
             sections[bench.name] = run_bench(bench, args.threads, args.quick, args.timeout)
     if args.gpu is not None:
-        sections["gpu"] = gpu_section(args.gpu.resolve())
-    body = [sections[b.name] for b in BENCHES if b.name in sections] + ([sections["gpu"]] if "gpu" in sections
-                                                                         else [])
-    README.write_text(header(args.quick, args.only) + "\n\n" + "\n\n".join(body) + "\n")
+        sections[gpu_name(args.gpu.resolve())] = gpu_section(args.gpu.resolve())
+    body = [sections[b.name] for b in BENCHES if b.name in sections] + [sections[name] for name in sorted(sections)
+                                                                         if name.startswith("gpu")]
+    last = [f"--only {name}" for name in args.only or []] + ([f"--gpu {args.gpu.as_posix()}"] if args.gpu else [])
+    README.write_text(header(args.quick, last or None) + "\n\n" + "\n\n".join(body) + "\n")
     print(f"wrote {README.relative_to(ROOT)} in {time.perf_counter() - started:.0f} s")
 
 
