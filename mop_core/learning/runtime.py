@@ -34,16 +34,21 @@ def available_cores() -> int:
         return os.cpu_count() or 1
 
 
-def resolve_threads(value: Any, key: str) -> int:
-    """A ``threads`` param: a positive integer, or ``auto`` (:func:`available_cores`). ``auto`` fits a run to
-    its machine, at a price: thread counts change float rounding, so two machines' runs of one params file
-    then differ in the last bits, which DVC's params hash does not see (an integer pins them)."""
+def _count_or_auto(value: Any, key: str) -> int:
+    """A positive integer, or ``auto``: :func:`available_cores`."""
     if value == "auto":
         return available_cores()
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
         raise ConfigError(f"{key}: expected a positive integer or 'auto' (the cores this process may use), "
                           f"got {value!r}")
     return value
+
+
+def resolve_threads(value: Any, key: str) -> int:
+    """A ``threads`` param: a positive integer, or ``auto`` (:func:`available_cores`). ``auto`` fits a run to
+    its machine, at a price: thread counts change float rounding, so two machines' runs of one params file
+    then differ in the last bits, which DVC's params hash does not see (an integer pins them)."""
+    return _count_or_auto(value, key)
 
 
 def resolve_workers(value: Any, key: str) -> int:
@@ -51,12 +56,7 @@ def resolve_workers(value: Any, key: str) -> int:
     (:func:`available_cores`). Unlike ``threads``, ``auto`` costs nothing here: every job draws its own
     episode seeds and runs in one single-threaded process, so the results do not depend on how many
     processes share the jobs (tested for eval and shared computation); a 64-core machine rolls out on 64."""
-    if value == "auto":
-        return available_cores()
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ConfigError(f"{key}: expected a positive integer or 'auto' (the cores this process may use), "
-                          f"got {value!r}")
-    return value
+    return _count_or_auto(value, key)
 
 
 def resolve_device(name: str, key: str = "device") -> torch.device:
