@@ -170,13 +170,17 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2, help="torch threads")
     parser.add_argument("--quick", action="store_true", help="a few updates per measure (a smoke test)")
     parser.add_argument("--out", help="write the rates as JSON here")
+    parser.add_argument("--tf32", action="store_true",
+                        help="CUDA matmuls in TF32 (not what the study runs: its numbers are fp32; a measure of "
+                             "what TF32 would buy)")
     args = parser.parse_args()
     configure_compute(args.threads)
+    torch.backends.cuda.matmul.allow_tf32 = args.tf32
     device = resolve_device(args.device, "--device")
     profile = Path(args.profile)
     params = yaml.safe_load(profile.read_text())
     count = 3 if args.quick else 50
-    result = {"profile": profile.name, "device": str(device), "threads": args.threads,
+    result = {"profile": profile.name, "device": str(device), "threads": args.threads, "tf32": args.tf32,
               "machine": machine_facts(device),
               "td3_updates_per_second": td3_rate(params, device, count),
               "pbrl_updates_per_second": pbrl_rates(profile, device, count),

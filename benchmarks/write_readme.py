@@ -156,9 +156,13 @@ def gpu_section(directory: Path) -> str:
         f"<!-- bench:{name} -->", f"## {title}", "",
         "`bash benchmarks/gpu_check.sh` on a lent GPU machine (the script says what each part does), its",
         f"files copied to `{where}/` and rendered here by `python benchmarks/write_readme.py --gpu {where}`.", "",
-        "Card (nvidia-smi) and software:", "", "```", card, "```", "",
-        "The tests with `MOP_TEST_DEVICE=cuda` (the learners, and where the run named them the tiny profile's "
-        "`dvc repro`, on CUDA), last lines:", "", "```", read("tests.log", 20), "```", ""]
+        "Card (nvidia-smi) and software:", "", "```", card, "```", ""]
+    if (directory / "tests.log").is_file():
+        parts += ["The tests with `MOP_TEST_DEVICE=cuda` (the learners, and where the run named them the tiny "
+                  "profile's `dvc repro`, on CUDA), last lines:", "", "```", read("tests.log", 20), "```", ""]
+    if '"tf32": true' in read("rates.json"):
+        parts += ["**These rates ran with CUDA matmuls in TF32** (`bench_rates.py --tf32`): a measure of what TF32 "
+                  "would buy; the study runs fp32.", ""]
     if (directory / "rates.log").is_file():  # what the captured updates buy: bench_rates' printed ratios
         ratios = [line for line in read("rates.log").splitlines() if line.endswith("x") or "x one" in line]
         parts += ["Measured in the same run, CUDA graphs against eager and rollouts over every core "
