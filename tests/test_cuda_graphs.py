@@ -1,5 +1,5 @@
-"""Issue 39, part 2: PBRL groups', the multi-task baseline's and student groups' updates replayed as CUDA graphs
-equal eager ones.
+"""Issue 39, part 2: PBRL groups', the multi-task baseline's, student groups' and TD3's updates replayed as CUDA
+graphs equal eager ones.
 
 On CUDA (MOP_TEST_DEVICE=cuda, benchmarks/gpu_check.sh) a captured group and an eager one of the same
 seeds take the same minibatches under a cosine learning rate; after the warm-up, both variants' capture
@@ -21,6 +21,7 @@ from conftest import TEST_DEVICE
 from mop_core.agents.pbrl import PBRLConfig
 from mop_core.agents.pbrl_group import PBRLGroup, stack_batches
 from mop_core.agents.pbrl_multitask import MultiTaskPBRL
+from mop_core.agents.td3 import TD3, TD3Config
 from mop_core.data.buffer import Batch
 from mop_core.distill.config import DistillConfig
 from mop_core.distill.distiller import Distiller
@@ -129,6 +130,30 @@ def test_a_captured_multitask_baseline_equals_the_eager_one(actor):
     for key, value in expected.items():
         torch.testing.assert_close(torch.as_tensor(found[key]).float().cpu(), torch.as_tensor(value).float().cpu(),
                                    atol=1e-4, rtol=1e-4, msg=lambda m, k=key: f"metric {k}: {m}")
+
+
+@cuda
+def test_a_captured_td3_equals_the_eager_one_with_exploration_draws_between_updates():
+    device = torch.device("cuda")
+    config = TD3Config(hidden_sizes=(64, 64), batch_size=32, layer_norm=True)
+    captured, eager = TD3(config, OBS, ACT, 0, device, cuda_graphs=True), TD3(config, OBS, ACT, 0, device,
+                                                                               cuda_graphs=False)
+    g = torch.Generator().manual_seed(4)
+    for _ in range(STEPS):  # collect's order: act with exploration noise (the same generator), then update
+        states = torch.randn(3, OBS, generator=g).numpy()
+        torch.testing.assert_close(captured.act(states, 0.1), eager.act(states, 0.1), atol=1e-5, rtol=1e-4)
+        batch = Batch(torch.randn(32, OBS, generator=g), torch.rand(32, ACT, generator=g) * 2 - 1,
+                      torch.randn(32, generator=g), torch.randn(32, OBS, generator=g), torch.zeros(32)).to(device)
+        found, expected = captured.update(batch), eager.update(batch)
+    assert len(captured.graphed.graphs) == 2
+    a, b = captured.state_dict(), eager.state_dict()
+    for part in ("actor", "critic", "actor_target", "critic_target"):
+        for key, value in b[part].items():
+            torch.testing.assert_close(a[part][key], value, atol=2e-5, rtol=1e-4,
+                                       msg=lambda m, k=key, p=part: f"{p} {k}: {m}")
+    assert torch.equal(a["generator"], b["generator"])
+    for key, value in expected.items():
+        torch.testing.assert_close(found[key].float().cpu(), value.float().cpu(), atol=1e-4, rtol=1e-4)
 
 
 def _students(loss: str, device: torch.device, cuda_graphs: bool, step_per_task: bool = False) -> Distiller:

@@ -22,6 +22,7 @@ import torch
 
 from mop_core.config import require
 from mop_core.data.buffer import Batch
+from mop_core.learning.graphs import GraphedStep, capturable_adam, graphs_enabled, keep_capturable
 from mop_core.learning.nn import DeterministicActor, EnsembleCritic, adam, smoothed_target_action, soft_update
 
 
@@ -62,7 +63,7 @@ class TD3:
     """A TD3 learner: ``act`` for collection, ``update(batch)`` for one gradient step."""
 
     def __init__(self, config: TD3Config, obs_dim: int, act_dim: int, seed: int,
-                 device: torch.device | str = "cpu"):
+                 device: torch.device | str = "cpu", cuda_graphs: bool | None = None):
         self.config = config
         self.device = torch.device(device)
         torch.manual_seed(seed)  # network initialisation
@@ -70,10 +71,14 @@ class TD3:
         self.critic = EnsembleCritic(obs_dim, act_dim, config.hidden_sizes, 2, config.layer_norm).to(self.device)
         self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
-        self.actor_optimizer = adam(self.actor.parameters(), config.learning_rate)
-        self.critic_optimizer = adam(self.critic.parameters(), config.learning_rate)
+        captured = graphs_enabled(self.device, cuda_graphs)  # on CUDA: updates replayed as CUDA graphs
+        optimizer = (lambda params: capturable_adam(params, config.learning_rate, self.device)) if captured else (
+            lambda params: adam(params, config.learning_rate))
+        self.actor_optimizer = optimizer(self.actor.parameters())
+        self.critic_optimizer = optimizer(self.critic.parameters())
         self.generator = torch.Generator(self.device).manual_seed(seed)
         self.updates = 0
+        self.graphed = GraphedStep(self._captured_step, [self.generator]) if captured else None
 
     @torch.no_grad()
     def act(self, observations: np.ndarray, noise_std: float = 0.0) -> np.ndarray:
@@ -94,19 +99,16 @@ class TD3:
         next_q = self.critic_target(batch.next_observations, next_action)
         return td3_target(batch.rewards, batch.terminals, next_q, self.config.gamma)
 
-    def update(self, batch: Batch) -> dict[str, torch.Tensor]:
-        """One critic step; every ``policy_delay``-th call also an actor step and target update.
-        Metrics are 0-d tensors, read in batches by the caller (:mod:`mop_core.learning.step_metrics`)."""
-        batch = batch.to(self.device)
+    def _step(self, batch: Batch, actor_now: bool) -> dict[str, torch.Tensor]:
+        """One critic step; if ``actor_now`` an actor step and the target networks' update."""
         target = self.compute_target(batch)
         q = self.critic(batch.observations, batch.actions)  # [2, B]
         critic_loss = (q - target).pow(2).mean(dim=1).sum()
         self.critic_optimizer.zero_grad(set_to_none=True)
         critic_loss.backward()
         self.critic_optimizer.step()
-        self.updates += 1
         metrics = {"critic_loss": critic_loss.detach(), "q_mean": q.mean().detach()}
-        if self.updates % self.config.policy_delay == 0:
+        if actor_now:
             self.critic.requires_grad_(False)  # the actor step needs dQ/da only
             actor_loss = -self.critic.first(batch.observations, self.actor(batch.observations)).mean()
             self.actor_optimizer.zero_grad(set_to_none=True)
@@ -116,6 +118,27 @@ class TD3:
             soft_update(self.actor_target, self.actor, self.config.tau)
             soft_update(self.critic_target, self.critic, self.config.tau)
             metrics["actor_loss"] = actor_loss.detach()
+        return metrics
+
+    def _captured_step(self, actor_now: bool):
+        def step() -> dict[str, torch.Tensor]:
+            b = self.graphed.buffers
+            return self._step(Batch(b["observations"], b["actions"], b["rewards"], b["next_observations"],
+                                    b["terminals"]), actor_now)
+        return step
+
+    def update(self, batch: Batch) -> dict[str, torch.Tensor]:
+        """One critic step; every ``policy_delay``-th call also an actor step and target update (on CUDA a
+        replayed CUDA graph per variant). Metrics are 0-d tensors, read in batches by the caller
+        (:mod:`mop_core.learning.step_metrics`)."""
+        batch = batch.to(self.device)
+        actor_now = (self.updates + 1) % self.config.policy_delay == 0
+        if self.graphed is None:
+            metrics = self._step(batch, actor_now)
+        else:
+            metrics = self.graphed(actor_now, {name: getattr(batch, name) for name in (
+                "observations", "actions", "rewards", "next_observations", "terminals")})
+        self.updates += 1
         return metrics
 
     def state_dict(self) -> dict:
@@ -135,6 +158,10 @@ class TD3:
         self.actor_optimizer.load_state_dict(state["actor_optimizer"])
         self.critic_optimizer.load_state_dict(state["critic_optimizer"])
         self.generator.set_state(state["generator"])
+        if self.graphed is not None:  # new optimiser tensors: capture again
+            for optimizer in (self.actor_optimizer, self.critic_optimizer):
+                keep_capturable(optimizer, self.device)
+            self.graphed.reset()
         self.updates = state["updates"]
 
     def actor_state(self) -> dict[str, torch.Tensor]:
