@@ -6,8 +6,8 @@ Measures in one process (after a warm-up; on CUDA every timed block ends with a 
 - PBRL updates/s per actor type at ``train_teachers.pbrl`` (a teacher), the naive multi-task baseline's
   updates/s (one task's step each), and the group updates/s of R = 1 and R = 8 teachers trained as one
   vectorised model (the train_teachers stage trains every task and seed of a (level, actor) as one);
-- on CUDA these groups replay their updates as CUDA graphs (mop_core.learning.graphs); R = 8 is also
-  timed eager, and the ratio printed;
+- on CUDA these learners replay their updates as CUDA graphs (mop_core.learning.graphs); TD3, the
+  baseline and the R = 8 groups are also timed eager, and the ratios printed;
 - student updates/s for a group of R = 1 and R = 8 students (the distill stage trains every seed of a
   (loss, pairing) as one group) at ``distill``, MSE and Q losses, 2 tasks: the group's updates/s, so
   R runs of 8 cost R / (8 * rate_8) seconds per step each;
@@ -68,9 +68,9 @@ def per_second(step, count: int, device: torch.device, repeats: int = 3) -> floa
     return count / times[len(times) // 2]
 
 
-def td3_rate(params: dict, device: torch.device, count: int) -> float:
+def td3_rate(params: dict, device: torch.device, count: int, cuda_graphs: bool | None = None) -> float:
     config = from_mapping(TD3Config, params["collect"]["td3"], "collect.td3")
-    agent = TD3(config, 24, 6, 0, device)
+    agent = TD3(config, 24, 6, 0, device, cuda_graphs)
     batch = random_batch(config.batch_size).to(device)
     return per_second(lambda: agent.update(batch), count, device)
 
@@ -195,15 +195,17 @@ def main() -> None:
         result["pbrl_group_eager_updates_per_second"] = pbrl_group_rates(profile, device, count, (8,), False)
         result["student_group_eager_updates_per_second"] = student_rates(profile, params, device, count, (8,), False)
         result["pbrl_multitask_eager_updates_per_second"] = multitask_rate(profile, device, count, False)
+        result["td3_eager_updates_per_second"] = td3_rate(params, device, count, False)
     print(json.dumps(result, indent=1))
     for name in ("pbrl_group", "student_group"):
         for kind, eager in result.get(f"{name}_eager_updates_per_second", {}).items():
             captured = result[f"{name}_updates_per_second"][kind]["8"]
             print(f"{name} {kind} R = 8: CUDA graphs {captured:.0f} updates/s, eager {eager['8']:.0f}: "
                   f"{captured / eager['8']:.2f}x")
-    if "pbrl_multitask_eager_updates_per_second" in result:
-        captured, eager = result["pbrl_multitask_updates_per_second"], result["pbrl_multitask_eager_updates_per_second"]
-        print(f"multi-task baseline: CUDA graphs {captured:.0f} updates/s, eager {eager:.0f}: {captured / eager:.2f}x")
+    for key, name in (("pbrl_multitask", "multi-task baseline"), ("td3", "TD3")):
+        if f"{key}_eager_updates_per_second" in result:
+            captured, eager = result[f"{key}_updates_per_second"], result[f"{key}_eager_updates_per_second"]
+            print(f"{name}: CUDA graphs {captured:.0f} updates/s, eager {eager:.0f}: {captured / eager:.2f}x")
     ratio = result["parallel_rollout_control_steps_per_second"] / result["rollout_control_steps_per_second"]
     print(f"rollouts over {result['parallel_rollout_workers']} processes: {ratio:.2f}x one process's batched rate")
     if args.out:
