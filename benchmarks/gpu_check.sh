@@ -16,7 +16,8 @@
 #   MOP_GPU_CHECK_SCALE=0.0001 bash benchmarks/gpu_check.sh
 # Time limits per part: MOP_GPU_CHECK_LIMITS="rates repro tests" seconds (default "60 240 280"). The parts
 # run, in this order: MOP_GPU_CHECK_PARTS (default "rates repro tests"; e.g. "tests rates" checks the captured
-# updates against eager first, then times them). Measured on an
+# updates against eager first, then times them). MOP_GPU_CHECK_PROFILE: part 1's profile (default
+# profiles/thesis.yaml; profiles/evidence.yaml prices the evidence record on the card). Measured on an
 # H200 (2026-11-27): rates 34 s; the shortened repro ran collect, teachers and the baseline in ~90 s, its rollouts
 # (~1-1.6k control steps/s on that machine) dominate the rest; the suite on CUDA took more than 290 s (the
 # tiny dvc repro tests), the rest of it 50 s with 12 workers. At most 8 files come back from the machine: keep
@@ -30,6 +31,7 @@ TESTS=${MOP_GPU_CHECK_TESTS:-tests}
 read -r LIMIT_RATES LIMIT_REPRO LIMIT_TESTS <<< "${MOP_GPU_CHECK_LIMITS:-60 240 280}"
 SCALE=${MOP_GPU_CHECK_SCALE:-0.001}
 PARTS=${MOP_GPU_CHECK_PARTS:-rates repro tests}
+PROFILE=${MOP_GPU_CHECK_PROFILE:-profiles/thesis.yaml}  # the profile part 1 measures at and plans
 mkdir -p "$OUT"
 started=$(date +%s)
 stamp() { echo "[gpu_check +$(( $(date +%s) - started ))s] $*"; }
@@ -59,11 +61,11 @@ stamp "environment ready"
 
 # ---- 1. rates at the thesis sizes and the thesis profile's estimated cost ------------------------------
 part_rates() {
-  stamp "rates at the thesis profile's sizes"
-  (cd benchmarks && timeout "$LIMIT_RATES" "$PY" bench_rates.py --profile ../profiles/thesis.yaml --device "$DEVICE" \
+  stamp "rates at $PROFILE's sizes"
+  (cd benchmarks && timeout "$LIMIT_RATES" "$PY" bench_rates.py --profile "../$PROFILE" --device "$DEVICE" \
     ${MOP_GPU_CHECK_RATES_ARGS:-} --out "$OUT/rates.json" > "$OUT/rates.log" 2>&1) || echo "rates failed: see rates.log"
   if [ -f "$OUT/rates.json" ]; then
-    "$PY" -m mop_core.plan profiles/thesis.yaml --rates "$OUT/rates.json" | tee "$OUT/plan.md"
+    "$PY" -m mop_core.plan "$PROFILE" --rates "$OUT/rates.json" | tee "$OUT/plan.md"
   fi
 }
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import json
 import os
 import re
 import subprocess
@@ -151,6 +152,8 @@ def gpu_section(directory: Path) -> str:
         return "\n".join(lines[-tail:] if tail else lines)
 
     card, name, where = read("gpu.txt"), gpu_name(directory), directory.relative_to(ROOT).as_posix()
+    rates = directory / "rates.json"
+    profile = json.loads(rates.read_text()).get("profile", "thesis.yaml") if rates.is_file() else "thesis.yaml"
     title = "gpu" if name == "gpu" else f"gpu ({directory.name})"
     parts = [
         f"<!-- bench:{name} -->", f"## {title}", "",
@@ -168,9 +171,9 @@ def gpu_section(directory: Path) -> str:
         parts += ["Measured in the same run, CUDA graphs against eager and rollouts over every core "
                   "(`rates.log`):", "", "```", *ratios, "```", ""]
     parts += [
-        "Rates at the thesis profile's sizes (`benchmarks/bench_rates.py`; student rates are group updates/s "
-        "for R runs):", "", "```json", read("rates.json"), "```", "",
-        f"The thesis profile's estimated cost (`python -m mop_core.plan profiles/thesis.yaml --rates "
+        f"Rates at the sizes of profiles/{profile} (`benchmarks/bench_rates.py`; student rates are group "
+        "updates/s for R runs):", "", "```json", read("rates.json"), "```", "",
+        f"That profile's estimated cost (`python -m mop_core.plan profiles/{profile} --rates "
         f"{where}/rates.json`: the schedules times these rates; the script writes it as plan.md):", "",
         read("plan.md"), ""]
     if (directory / "short_timings.md").is_file():
