@@ -224,3 +224,20 @@ def test_a_captured_step_takes_one_shape_per_input():
         step._fill({"observations": torch.zeros(3, 4)})
     with pytest.raises(ValueError, match="warmup"):
         GraphedStep(lambda variant: (lambda: {}), warmup=0)
+
+
+def test_a_resume_file_of_a_captured_run_continues_eagerly_on_a_cpu():
+    """A captured run's optimiser groups (capturable, a tensor learning rate) resumed by an eager CPU group:
+    the groups become what the CPU group built (a CPU Adam refuses capturable) and it continues as the
+    uninterrupted run (issue 39: runs restored across machines)."""
+    batches = _batches(torch.device("cpu"), 10)
+    whole, first = (PBRLGroup(_config("gaussian"), OBS, ACT, SEEDS, "cpu") for _ in range(2))
+    _train(first, batches[:5])
+    state = first.state_dict()
+    for part in ("actor_optimizer", "critic_optimizer", "alpha_optimizer"):  # as a captured run writes them
+        for group in state[part]["param_groups"]:
+            group["capturable"], group["lr"] = True, torch.tensor(group["lr"])
+    resumed = PBRLGroup(_config("gaussian"), OBS, ACT, SEEDS, "cpu")
+    resumed.load_state_dict(state)
+    assert all(not g["capturable"] and isinstance(g["lr"], float) for o in resumed.optimizers() for g in o.param_groups)
+    _assert_same(resumed, whole, (_train(resumed, batches[5:], start=5), _train(whole, batches)))

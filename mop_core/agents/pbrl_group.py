@@ -37,7 +37,7 @@ from mop_core.agents.pbrl import (
     ood_target,
 )
 from mop_core.data.buffer import Batch
-from mop_core.learning.graphs import GraphedStep, capturable_adam, graphs_enabled, keep_capturable
+from mop_core.learning.graphs import GraphedStep, capturable_adam, graphs_enabled, match_loaded
 from mop_core.learning.nn import (
     EnsembleCritic,
     EnsembleLinear,
@@ -317,7 +317,7 @@ class PBRLGroup:
         for generator, saved in zip(self.generators, state["generators"], strict=True):
             generator.set_state(saved)
         self.updates = state["updates"]
+        for optimizer in self.optimizers():  # as built here, whoever wrote the state
+            match_loaded(optimizer, self.graphed is not None, self.device)
         if self.graphed is not None:  # new optimiser tensors: capture again
-            for optimizer in self.optimizers():
-                keep_capturable(optimizer, self.device)
             self.graphed.reset()

@@ -28,7 +28,7 @@ from mop_core.agents.pbrl import (
 )
 from mop_core.data.buffer import Batch
 from mop_core.learning.conflict import flat_gradient, pairwise_cosines
-from mop_core.learning.graphs import GraphedStep, capturable_adam, graphs_enabled, keep_capturable
+from mop_core.learning.graphs import GraphedStep, capturable_adam, graphs_enabled, match_loaded
 from mop_core.learning.nn import adam, numpy_policy, soft_update, with_task_id
 
 
@@ -147,7 +147,7 @@ class MultiTaskPBRL:
         self.temperature.load_state_dict(state["temperature"])
         self.generator.set_state(state["generator"])
         self.updates = state["updates"]
+        for optimizer in self.optimizers():  # as built here, whoever wrote the state
+            match_loaded(optimizer, self.graphed is not None, self.device)
         if self.graphed is not None:  # new optimiser tensors: capture again
-            for optimizer in self.optimizers():
-                keep_capturable(optimizer, self.device)
             self.graphed.reset()

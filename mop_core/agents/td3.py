@@ -22,7 +22,7 @@ import torch
 
 from mop_core.config import require
 from mop_core.data.buffer import Batch
-from mop_core.learning.graphs import GraphedStep, capturable_adam, graphs_enabled, keep_capturable
+from mop_core.learning.graphs import GraphedStep, capturable_adam, graphs_enabled, match_loaded
 from mop_core.learning.nn import DeterministicActor, EnsembleCritic, adam, smoothed_target_action, soft_update
 
 
@@ -158,9 +158,9 @@ class TD3:
         self.actor_optimizer.load_state_dict(state["actor_optimizer"])
         self.critic_optimizer.load_state_dict(state["critic_optimizer"])
         self.generator.set_state(state["generator"])
+        for optimizer in (self.actor_optimizer, self.critic_optimizer):  # as built here, whoever wrote the state
+            match_loaded(optimizer, self.graphed is not None, self.device)
         if self.graphed is not None:  # new optimiser tensors: capture again
-            for optimizer in (self.actor_optimizer, self.critic_optimizer):
-                keep_capturable(optimizer, self.device)
             self.graphed.reset()
         self.updates = state["updates"]
 

@@ -26,7 +26,7 @@ from mop_core.distill.ranking import SYMMETRIC_LOSSES, cross_task_ranking, ranki
 from mop_core.distill.states import TaskStates
 from mop_core.distill.student import Student, StudentGroup
 from mop_core.learning.conflict import flat_gradient, pairwise_cosines
-from mop_core.learning.graphs import GraphedStep, capturable_adam, graphs_enabled, keep_capturable
+from mop_core.learning.graphs import GraphedStep, capturable_adam, graphs_enabled, match_loaded
 from mop_core.learning.nn import EnsembleCritic, adam, with_task_id
 from mop_core.learning.schedule import set_learning_rate
 from mop_core.learning.step_metrics import run_key
@@ -257,8 +257,8 @@ class Distiller:
     def load_state_dict(self, state: dict) -> None:
         self.group.load_state_dict(state["group"])
         self.optimizer.load_state_dict(state["optimizer"])
+        match_loaded(self.optimizer, self.graphed is not None, self.device)  # as built here, whoever wrote it
         if self.graphed is not None:  # new optimiser tensors: capture again
-            keep_capturable(self.optimizer, self.device)
             self.graphed.reset()
         for generator, saved in zip(self.generators, state["generators"], strict=True):
             generator.set_state(saved)

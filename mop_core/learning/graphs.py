@@ -58,12 +58,14 @@ def capturable_adam(params: Iterable[torch.nn.Parameter], lr: float, device: tor
                             capturable=True)
 
 
-def keep_capturable(optimizer: torch.optim.Optimizer, device: torch.device) -> None:
-    """After ``optimizer.load_state_dict`` (a resume file, written by a captured or an eager run): the
-    groups capturable again, each learning rate a device tensor of the loaded value."""
+def match_loaded(optimizer: torch.optim.Optimizer, captured: bool, device: torch.device) -> None:
+    """After ``optimizer.load_state_dict`` of a resume file that a captured or an eager run wrote (on this
+    machine or another): its groups as this learner built them. Captured: capturable, the learning rate a
+    device tensor of the loaded value; eager: not capturable (a CPU Adam refuses it), a plain float rate."""
     for group in optimizer.param_groups:
-        group["capturable"] = True
-        group["lr"] = torch.tensor(float(group["lr"]), dtype=torch.float32, device=device)
+        rate = float(group["lr"])
+        group["capturable"] = captured
+        group["lr"] = torch.tensor(rate, dtype=torch.float32, device=device) if captured else rate
 
 
 class GraphedStep:
