@@ -241,3 +241,11 @@ def test_a_resume_file_of_a_captured_run_continues_eagerly_on_a_cpu():
     resumed.load_state_dict(state)
     assert all(not g["capturable"] and isinstance(g["lr"], float) for o in resumed.optimizers() for g in o.param_groups)
     _assert_same(resumed, whole, (_train(resumed, batches[5:], start=5), _train(whole, batches)))
+
+
+def test_a_batch_round_trips_through_a_captured_steps_buffers():
+    batch = Batch(*(torch.randn(4, 2) for _ in range(5)))
+    buffers = batch.as_dict() | {"beta_ood": torch.zeros(())}  # the learners' extra input is ignored
+    assert list(batch.as_dict()) == ["observations", "actions", "rewards", "next_observations", "terminals"]
+    assert all(torch.equal(a, b) for a, b in zip(Batch.from_dict(buffers).as_dict().values(),
+                                                  batch.as_dict().values()))

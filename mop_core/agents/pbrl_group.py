@@ -37,12 +37,16 @@ from mop_core.agents.pbrl import (
     ood_target,
 )
 from mop_core.data.buffer import Batch
-from mop_core.learning.graphs import GraphedStep, capturable_adam, graphs_enabled, match_loaded
+from mop_core.learning.graphs import (
+    GraphedStep,
+    graphs_enabled,
+    learner_adam,
+    match_loaded,
+)
 from mop_core.learning.nn import (
     EnsembleCritic,
     EnsembleLinear,
     GaussianActor,
-    adam,
     bounded_log_std,
     copy_member,
     ensemble_forward,
@@ -123,8 +127,8 @@ class PBRLGroup:
         self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
         # on CUDA the update is captured as CUDA graphs (mop_core.learning.graphs); eager elsewhere
         captured = graphs_enabled(self.device, cuda_graphs)
-        optimizer = (lambda params: capturable_adam(params, config.learning_rate, self.device)) if captured else (
-            lambda params: adam(params, config.learning_rate))
+        def optimizer(params) -> torch.optim.Adam:
+            return learner_adam(params, config.learning_rate, self.device, captured)
         self.actor_optimizer = optimizer(self.actor.parameters())
         self.critic = EnsembleCritic(obs_dim, act_dim, config.hidden_sizes, len(seeds) * config.ensemble_size,
                                      config.layer_norm).to(self.device)
@@ -253,8 +257,7 @@ class PBRLGroup:
         """The step :class:`~mop_core.learning.graphs.GraphedStep` captures: inputs from its buffers."""
         def step() -> dict[str, torch.Tensor]:
             b = self.graphed.buffers
-            batch = Batch(b["observations"], b["actions"], b["rewards"], b["next_observations"], b["terminals"])
-            return self._step(batch, b["beta_ood"], actor_step)
+            return self._step(Batch.from_dict(b), b["beta_ood"], actor_step)
         return step
 
     def update(self, batch: Batch) -> dict[str, torch.Tensor | float]:
@@ -267,9 +270,8 @@ class PBRLGroup:
         if self.graphed is None:
             per_run = self._step(batch, beta, actor_step)
         else:
-            inputs = {name: getattr(batch, name) for name in ("observations", "actions", "rewards",
-                                                              "next_observations", "terminals")}
-            per_run = self.graphed(actor_step, inputs | {"beta_ood": torch.full((), beta, device=self.device)})
+            per_run = self.graphed(actor_step, batch.as_dict() | {"beta_ood": torch.full((), beta,
+                                                                                             device=self.device)})
         self.updates += 1
         metrics: dict[str, torch.Tensor | float] = {run_key(key, r): value for key, values in per_run.items()
                                                     for r, value in enumerate(values.to(self.device).unbind(0))}

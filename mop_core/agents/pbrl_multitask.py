@@ -28,7 +28,12 @@ from mop_core.agents.pbrl import (
 )
 from mop_core.data.buffer import Batch
 from mop_core.learning.conflict import flat_gradient, pairwise_cosines
-from mop_core.learning.graphs import GraphedStep, capturable_adam, graphs_enabled, match_loaded
+from mop_core.learning.graphs import (
+    GraphedStep,
+    capturable_adam,
+    graphs_enabled,
+    match_loaded,
+)
 from mop_core.learning.nn import adam, numpy_policy, soft_update, with_task_id
 
 
@@ -89,8 +94,7 @@ class MultiTaskPBRL:
     def _captured_step(self, variant: tuple[int, bool]):
         def step() -> dict[str, torch.Tensor | float]:
             b = self.graphed.buffers
-            batch = Batch(b["observations"], b["actions"], b["rewards"], b["next_observations"], b["terminals"])
-            return self._step(batch, variant[0], b["beta_ood"], variant[1])
+            return self._step(Batch.from_dict(b), variant[0], b["beta_ood"], variant[1])
         return step
 
     def update(self, batch: Batch, task: int) -> dict[str, torch.Tensor | float]:
@@ -103,9 +107,8 @@ class MultiTaskPBRL:
         if self.graphed is None:
             metrics = self._step(batch, task, beta, actor_now)
         else:
-            inputs = {name: getattr(batch, name) for name in ("observations", "actions", "rewards",
-                                                              "next_observations", "terminals")}
-            metrics = self.graphed((task, actor_now), inputs | {"beta_ood": torch.full((), beta, device=self.device)})
+            metrics = self.graphed((task, actor_now), batch.as_dict() | {
+                "beta_ood": torch.full((), beta, device=self.device)})
         metrics["beta_ood"] = beta
         self.critic_updates[task] += 1
         self.updates += 1

@@ -22,8 +22,13 @@ import torch
 
 from mop_core.config import require
 from mop_core.data.buffer import Batch
-from mop_core.learning.graphs import GraphedStep, capturable_adam, graphs_enabled, match_loaded
-from mop_core.learning.nn import DeterministicActor, EnsembleCritic, adam, smoothed_target_action, soft_update
+from mop_core.learning.graphs import (
+    GraphedStep,
+    graphs_enabled,
+    learner_adam,
+    match_loaded,
+)
+from mop_core.learning.nn import DeterministicActor, EnsembleCritic, smoothed_target_action, soft_update
 
 
 @dataclass(frozen=True)
@@ -72,10 +77,8 @@ class TD3:
         self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
         captured = graphs_enabled(self.device, cuda_graphs)  # on CUDA: updates replayed as CUDA graphs
-        optimizer = (lambda params: capturable_adam(params, config.learning_rate, self.device)) if captured else (
-            lambda params: adam(params, config.learning_rate))
-        self.actor_optimizer = optimizer(self.actor.parameters())
-        self.critic_optimizer = optimizer(self.critic.parameters())
+        self.actor_optimizer = learner_adam(self.actor.parameters(), config.learning_rate, self.device, captured)
+        self.critic_optimizer = learner_adam(self.critic.parameters(), config.learning_rate, self.device, captured)
         self.generator = torch.Generator(self.device).manual_seed(seed)
         self.updates = 0
         self.graphed = GraphedStep(self._captured_step, [self.generator]) if captured else None
@@ -122,9 +125,7 @@ class TD3:
 
     def _captured_step(self, actor_now: bool):
         def step() -> dict[str, torch.Tensor]:
-            b = self.graphed.buffers
-            return self._step(Batch(b["observations"], b["actions"], b["rewards"], b["next_observations"],
-                                    b["terminals"]), actor_now)
+            return self._step(Batch.from_dict(self.graphed.buffers), actor_now)
         return step
 
     def update(self, batch: Batch) -> dict[str, torch.Tensor]:
@@ -136,8 +137,7 @@ class TD3:
         if self.graphed is None:
             metrics = self._step(batch, actor_now)
         else:
-            metrics = self.graphed(actor_now, {name: getattr(batch, name) for name in (
-                "observations", "actions", "rewards", "next_observations", "terminals")})
+            metrics = self.graphed(actor_now, batch.as_dict())
         self.updates += 1
         return metrics
 

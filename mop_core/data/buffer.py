@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 import torch
@@ -19,8 +19,16 @@ class Batch:
     terminals: torch.Tensor  # [B]
 
     def to(self, device: torch.device) -> "Batch":
-        return Batch(*(t.to(device, non_blocking=True) for t in
-                       (self.observations, self.actions, self.rewards, self.next_observations, self.terminals)))
+        return Batch(*(t.to(device, non_blocking=True) for t in self.as_dict().values()))
+
+    def as_dict(self) -> dict[str, torch.Tensor]:
+        """The fields by name (a captured step's inputs, mop_core.learning.graphs)."""
+        return {field.name: getattr(self, field.name) for field in fields(self)}
+
+    @classmethod
+    def from_dict(cls, tensors: dict[str, torch.Tensor]) -> "Batch":
+        """The batch of :meth:`as_dict`'s fields in ``tensors`` (other keys ignored: a captured step's buffers)."""
+        return cls(*(tensors[field.name] for field in fields(cls)))
 
 
 @dataclass

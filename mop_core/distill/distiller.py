@@ -26,8 +26,8 @@ from mop_core.distill.ranking import SYMMETRIC_LOSSES, cross_task_ranking, ranki
 from mop_core.distill.states import TaskStates
 from mop_core.distill.student import Student, StudentGroup
 from mop_core.learning.conflict import flat_gradient, pairwise_cosines
-from mop_core.learning.graphs import GraphedStep, capturable_adam, graphs_enabled, match_loaded
-from mop_core.learning.nn import EnsembleCritic, adam, with_task_id
+from mop_core.learning.graphs import GraphedStep, graphs_enabled, learner_adam, match_loaded
+from mop_core.learning.nn import EnsembleCritic, with_task_id
 from mop_core.learning.schedule import set_learning_rate
 from mop_core.learning.step_metrics import run_key
 
@@ -91,8 +91,7 @@ class Distiller:
         # on CUDA one update (draws and every optimiser step included) is a replayed CUDA graph
         # (mop_core.learning.graphs); eager elsewhere
         captured = graphs_enabled(self.device, cuda_graphs)
-        self.optimizer = (capturable_adam(self.group.parameters(), config.learning_rate, self.device) if captured
-                          else adam(self.group.parameters(), config.learning_rate))
+        self.optimizer = learner_adam(self.group.parameters(), config.learning_rate, self.device, captured)
         # state indices drawn on the device the states lie on (no host-to-device copy per step on a GPU)
         self.generators = [torch.Generator(self.device).manual_seed(seed) for seed in seeds]
         self.updates = 0

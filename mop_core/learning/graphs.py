@@ -37,6 +37,8 @@ from typing import Callable, Hashable, Iterable, Sequence
 
 import torch
 
+from mop_core.learning.nn import adam
+
 Step = Callable[[], dict[str, torch.Tensor]]
 
 
@@ -56,6 +58,13 @@ def capturable_adam(params: Iterable[torch.nn.Parameter], lr: float, device: tor
     :func:`~mop_core.learning.nn.adam` to float rounding."""
     return torch.optim.Adam(params, lr=torch.tensor(lr, dtype=torch.float32, device=device), fused=True,
                             capturable=True)
+
+
+def learner_adam(params: Iterable[torch.nn.Parameter], lr: float, device: torch.device,
+                 captured: bool) -> torch.optim.Adam:
+    """A learner's Adam: :func:`capturable_adam` where its updates are captured, else
+    :func:`~mop_core.learning.nn.adam`."""
+    return capturable_adam(params, lr, device) if captured else adam(params, lr)
 
 
 def match_loaded(optimizer: torch.optim.Optimizer, captured: bool, device: torch.device) -> None:
