@@ -165,7 +165,7 @@ def run_on_ray(ray, root: Path, jobs: list[Job], sized: dict, address: str | Non
             options = task.options(num_cpus=resources.cpus, num_gpus=resources.gpus, max_retries=retries,
                                    name=job.key)
             refs[job.key] = options.remote(shared, job.commit, job.entry, str(scratch), resources.cpus, job.stale,
-                                            *ups)
+                                            resources.gpus, *ups)
         waiting = list(refs.values())
         names = {ref: name for name, ref in refs.items()}
         return _collect(ray, waiting, names, len(jobs), log)

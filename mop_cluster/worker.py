@@ -23,6 +23,8 @@ from pathlib import Path
 
 import yaml
 
+GPU_SHARE_ENV = "MOP_GPU_SHARE"  # read by mop_core.learning.group_memory (mop_cluster imports no torch)
+
 RAN = "Running stage '"
 # fault injection for the tests: the first attempt at this entry dies as a killed node would
 KILL_ONCE = "MOP_CLUSTER_KILL_ONCE"
@@ -137,19 +139,22 @@ def _dvc(args: list[str], clone: Path, env: dict, entry: str, scratch: Path, may
 
 
 def run_entry(sharing: Sharing, commit: str, entry: str, scratch: str, cpus: int = 1,
-              stale: tuple[str, ...] = ()) -> EntryResult:
+              stale: tuple[str, ...] = (), gpus: float = 0.0) -> EntryResult:
     """``dvc repro entry`` in a fresh clone of ``sharing.source`` at ``commit``, told the ``cpus`` Ray gave it
-    (``MOP_THREADS``: what a ``threads: auto`` param resolves to there). Through a remote, the clone pulls
-    what it reads (``dvc repro --pull``) and pushes the entry's outputs and the run-cache records. The
-    clone's dvc.lock loses the ``stale`` entries (the run's), so that its upstream entries, which other
-    clones ran, are restored from the run cache instead of run again (:func:`drop_lock_entries`)."""
+    (``MOP_THREADS``: what a ``threads: auto`` param resolves to there) and its share ``gpus`` of a GPU
+    (``MOP_GPU_SHARE``: the memory a vectorised group sizes its waves by, mop_core.learning.group_memory).
+    Through a remote, the clone pulls what it reads (``dvc repro --pull``) and pushes the entry's outputs
+    and the run-cache records. The clone's dvc.lock loses the ``stale`` entries (the run's), so that its
+    upstream entries, which other clones ran, are restored from the run cache instead of run again
+    (:func:`drop_lock_entries`)."""
     start = time.perf_counter()
     Path(scratch).mkdir(parents=True, exist_ok=True)
     clone = Path(tempfile.mkdtemp(prefix=f"{entry.replace('@', '_')}-", dir=scratch))
     try:
         _clone(sharing, commit, clone)
         drop_lock_entries(clone / "dvc.lock", stale)
-        env = os.environ | {"MOP_PROGRESS": "0", "MOP_THREADS": str(cpus)}
+        env = os.environ | {"MOP_PROGRESS": "0", "MOP_THREADS": str(cpus)} | (
+            {GPU_SHARE_ENV: str(gpus)} if 0.0 < gpus < 1.0 else {})
         dvc_start = time.perf_counter()
         pull = ["--pull"] if sharing.remote else []
         log = _dvc(["repro", *pull, entry], clone, env, entry, Path(scratch), may_die=True)
@@ -163,7 +168,7 @@ def run_entry(sharing: Sharing, commit: str, entry: str, scratch: str, cpus: int
 
 
 def run_after(sharing: Sharing, commit: str, entry: str, scratch: str, cpus: int, stale: tuple[str, ...],
-              *upstream: EntryResult) -> EntryResult:
+              gpus: float, *upstream: EntryResult) -> EntryResult:
     """The Ray task: ``upstream`` are the results of the entries ``entry`` reads from (Ray passes them
     once they exist, so an entry starts only after its inputs are in the run cache)."""
-    return run_entry(sharing, commit, entry, scratch, cpus, stale)
+    return run_entry(sharing, commit, entry, scratch, cpus, stale, gpus)

@@ -26,6 +26,7 @@ from mop_core.data.hdf5 import read_dataset, read_relabel
 from mop_core.experiment.catalogue import build_catalogue
 from mop_core.experiment.runs import TeacherRun, sharing_teacher_entry, teacher_entry
 from mop_core.experiment.study import StudyConfig, teacher_grid
+from mop_core.learning.group_memory import GroupFootprint, device_room, measure_footprint, split_waves, wave_sizes
 from mop_core.learning.nn import EnsembleCritic, numpy_policy
 from mop_core.learning.resume import run_fingerprint
 from mop_core.learning.runtime import derive_seeds
@@ -197,7 +198,7 @@ def train_teacher(task: str, source: DataSource, config: TeacherConfig, seed: in
 
 def train_teacher_group(jobs: Sequence[TeacherJob], config: TeacherConfig, study_seed: int, resume: Path,
                         timing: Path | None, device: torch.device | str = "cpu", progress: bool = False,
-                        name: str = "teachers") -> list[dict]:
+                        name: str = "teachers", max_group: int | None = None) -> list[dict]:
     """Train the teachers of ``jobs`` (one configuration: tasks and seeds of one level and actor type)
     as one vectorised PBRL group (:class:`~mop_core.agents.pbrl_group.PBRLGroup`); write each run's
     checkpoint, curve and metrics (``jobs[r].paths``), the group's resume file and its timing record.
@@ -205,7 +206,9 @@ def train_teacher_group(jobs: Sequence[TeacherJob], config: TeacherConfig, study
     Each run draws what it would draw alone: its initialisation, its generator and its minibatch
     indices derive from (study seed, its task, data and seed), and it is evaluated on its own task
     with its own episode seeds; a group equals its runs trained alone to float rounding (tested).
-    Returns the metrics records, one per job.
+    Where the device has no room for the whole group (measured: :mod:`mop_core.learning.group_memory`),
+    or ``max_group`` caps it, the runs train in waves of as many as fit, one after another, each wave
+    with its own resume file (``<resume>-wave<k>``). Returns the metrics records, one per job.
     """
     require(len(jobs) > 0, "jobs", "at least one teacher run", len(jobs))
     for job in jobs:
@@ -217,6 +220,44 @@ def train_teacher_group(jobs: Sequence[TeacherJob], config: TeacherConfig, study
             loaded[job.sources] = load_sources(job.sources, config.episode_length, device)
             check_batch_fits(config, loaded[job.sources][1])
     data = [loaded[j.sources] for j in jobs]
+    sizes = wave_sizes(len(jobs), teacher_footprint(config, data[0][0], device), device_room(device),
+                       f"a teacher of {name}", max_group)
+    records, seconds, resumed = [], 0.0, []
+    for k, wave in enumerate(split_waves(list(range(len(jobs))), sizes)):
+        wave_resume = resume if len(sizes) == 1 else resume.with_name(f"{resume.stem}-wave{k}{resume.suffix}")
+        wave_records, wave_seconds, resumed_from = _train_wave(
+            [jobs[r] for r in wave], [data[r] for r in wave], config, study_seed, wave_resume, device, progress,
+            name if len(sizes) == 1 else f"{name} wave {k + 1}/{len(sizes)}")
+        records += wave_records
+        seconds += wave_seconds
+        resumed.append(resumed_from)
+    if timing is not None:
+        steps = config.schedule.steps * len(sizes)  # group steps: every wave's
+        waves = {} if len(sizes) == 1 else {"waves": sizes}  # a whole group writes what it always wrote
+        write_timing(timing, seconds, device, steps=steps, runs=len(jobs), **waves,
+                     steps_per_second=per_second(steps, seconds),
+                     resumed_from_step=resumed[0] if len(resumed) == 1 else resumed)
+    return records
+
+
+def teacher_footprint(config: TeacherConfig, data: TransitionTensors, device: torch.device) -> GroupFootprint | None:
+    """A teacher group's device memory per run and fixed (:func:`~mop_core.learning.group_memory.measure_footprint`:
+    throwaway groups of one and two runs on ``data``, stepped until every captured variant replays); None off CUDA."""
+    pbrl = config.pbrl
+
+    def step_group(runs: int) -> None:
+        group = PBRLGroup(pbrl, OBS_DIM, ACT_DIM, list(range(runs)), device)
+        sampler = torch.Generator(device).manual_seed(0)
+        for _ in range(3 * pbrl.policy_delay):  # two eager warm-ups and a capture of each variant
+            group.update(stack_batches([data.sample(pbrl.batch_size, sampler) for _ in range(runs)]))
+
+    return measure_footprint(step_group, device)
+
+
+def _train_wave(jobs: Sequence[TeacherJob], data: Sequence[tuple[TransitionTensors, dict]], config: TeacherConfig,
+                study_seed: int, resume: Path, device: torch.device, progress: bool,
+                name: str) -> tuple[list[dict], float, int]:
+    """One group of :func:`train_teacher_group`: its records, seconds and the step it resumed from."""
     seeds = [run_seeds(study_seed, [job.task, summary["source_task"], summary["level"]], job.seed)
              for job, (_, summary) in zip(jobs, data)]
     agent = PBRLGroup(config.pbrl, OBS_DIM, ACT_DIM, [s["agent"] for s in seeds], device)
@@ -256,10 +297,7 @@ def train_teacher_group(jobs: Sequence[TeacherJob], config: TeacherConfig, study
             "actor_sha256": state_sha256(actor_state), "dataset": summary, "metrics": metrics}
         records.append(finish_run(replace(job.paths, timing=None, resume=resume), checkpoint, list(curves[r]), metrics,
                                   seconds, sched.steps, resumed_from, device))
-    if timing is not None:
-        write_timing(timing, seconds, device, steps=sched.steps, runs=len(jobs),
-                     steps_per_second=per_second(sched.steps, seconds), resumed_from_step=resumed_from)
-    return records
+    return records, seconds, resumed_from
 
 
 def train_multitask(tasks: Sequence[str], sources: Sequence[DataSource], config: TeacherConfig, seed: int,

@@ -31,6 +31,21 @@ def test_order_puts_every_entry_after_its_upstream_and_the_closure_follows_reade
         StageGraph({"a": ("b",), "b": ("a",)}).order()
 
 
+def test_a_worker_tells_its_entry_the_cpus_and_the_gpu_share_ray_gave_it(tmp_path, monkeypatch):
+    """MOP_THREADS sizes threads: auto; MOP_GPU_SHARE caps the memory a group sizes its waves by."""
+    from mop_cluster import worker
+
+    seen = []
+    monkeypatch.setattr(worker, "_clone", lambda sharing, commit, clone: None)
+    monkeypatch.setattr(worker, "drop_lock_entries", lambda lock, stale: None)
+    monkeypatch.setattr(worker, "_dvc", lambda args, clone, env, *rest, **kw: seen.append(env) or "")
+    sharing = worker.Sharing(str(tmp_path), cache_dir=str(tmp_path))
+    for gpus in (0.25, 0.0, 1.0):
+        worker.run_entry(sharing, "HEAD", "distill@a", str(tmp_path / "scratch"), 3, (), gpus)
+    assert [env.get("MOP_GPU_SHARE") for env in seen] == ["0.25", None, None]  # a whole GPU: no cap
+    assert all(env["MOP_THREADS"] == "3" for env in seen)
+
+
 def test_each_entry_asks_for_the_threads_its_params_declare(tmp_path, tiny_params):
     params = dict(tiny_params)
     params["collect"] = {**params["collect"], "parallel": {"workers": 2, "threads_per_worker": 3}}

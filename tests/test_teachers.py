@@ -4,6 +4,7 @@ the checkpoint's contents, and the multi-task baseline's data routing."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -133,6 +134,15 @@ def test_a_teacher_group_trains_each_run_as_it_would_train_alone(sources, tmp_pa
     timing = tmp_path / "group-timing.json"
     records = train_teacher_group(jobs, config, 0, tmp_path / "group-resume.pt", timing)
     assert json.loads(timing.read_text())["runs"] == 4 and not (tmp_path / "group-resume.pt").exists()
+    if actor == "deterministic":  # a group too large for its device trains in waves: the same runs
+        waved = [replace(job, paths=_paths(tmp_path / "waves" / f"{job.task}-{job.seed}")) for job in jobs]
+        wave_records = train_teacher_group(waved, config, 0, tmp_path / "waves-resume.pt", timing, max_group=3)
+        assert json.loads(timing.read_text())["waves"] == [2, 2] and not list(tmp_path.glob("waves-resume*"))
+        for job, wave_job, record, wave_record in zip(jobs, waved, records, wave_records):
+            whole, wave = (torch.load(j.paths.checkpoint, weights_only=False) for j in (job, wave_job))
+            for name, tensor in whole["actor"].items():
+                torch.testing.assert_close(wave["actor"][name], tensor, atol=1e-5, rtol=1e-4)
+            assert wave_record["seed"] == record["seed"] and wave_record["task"] == record["task"]
     for job, record in zip(jobs, records):
         alone = _paths(tmp_path / "alone" / f"{job.task}-{job.seed}")
         expected = train_teacher(job.task, job.source, config, job.seed, 0, alone)
