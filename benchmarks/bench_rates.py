@@ -44,6 +44,7 @@ from mop_core.distill.checkpoint import student_policy
 from mop_core.distill.distiller import Distiller
 from mop_core.distill.states import TaskStates
 from mop_core.distill.student import Student
+from mop_core.learning.group_memory import device_room, measure_footprint, wave_sizes
 from mop_core.learning.nn import EnsembleCritic
 from mop_core.learning.runtime import available_cores, configure_compute, parallel_map, resolve_device
 from mop_core.storage.timings import machine_facts
@@ -51,6 +52,36 @@ from mop_core.walker.rollout import episode_returns
 
 ROOT = Path(__file__).resolve().parents[1]
 GROUP_SIZES = (1, 8)
+
+
+def profile_group_sizes(params: dict) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """The group sizes to measure for a profile: teachers at 1, 8, its entry's runs (tasks x seeds) and
+    twice that (would a larger group, e.g. both actor types of a level, pay?); students at 1, 8 and an
+    entry's seeds. The plan interpolates between measured sizes, so the profile's own are measured."""
+    entry = len(params["study"]["tasks"]) * len(params["train_teachers"]["seeds"])
+    return (tuple(sorted({*GROUP_SIZES, entry, 2 * entry})),
+            tuple(sorted({*GROUP_SIZES, len(params["distill"]["seeds"])})))
+
+
+def pbrl_group_footprint(profile: Path, params: dict, device: torch.device) -> dict | None:
+    """On CUDA: a deterministic teacher group's measured device memory (fixed and per run, bytes; captured as
+    training captures it) and the waves the profile's teacher entry trains in on this card
+    (:mod:`mop_core.learning.group_memory`); None elsewhere."""
+    config = replace(pbrl_config(profile), actor="deterministic")
+
+    def step_group(runs: int) -> None:
+        group = PBRLGroup(config, 24, 6, list(range(runs)), device)
+        batch = stack_batches([random_batch(config.batch_size, seed) for seed in range(runs)]).to(device)
+        for _ in range(3 * config.policy_delay):  # every variant warmed up and captured
+            group.update(batch)
+
+    footprint = measure_footprint(step_group, device)
+    if footprint is None:
+        return None
+    entry = profile_group_sizes(params)[0][-1] // 2
+    room = device_room(device)
+    return {"fixed_bytes": footprint.fixed, "per_run_bytes": footprint.per_run, "room_bytes": room,
+            "entry_runs": entry, "entry_waves": wave_sizes(entry, footprint, room, "a teacher")}
 
 
 def per_second(step, count: int, device: torch.device, repeats: int = 3) -> float:
@@ -180,18 +211,20 @@ def main() -> None:
     profile = Path(args.profile)
     params = yaml.safe_load(profile.read_text())
     count = 3 if args.quick else 50
+    teacher_sizes, student_sizes = profile_group_sizes(params)
     result = {"profile": profile.name, "device": str(device), "threads": args.threads, "tf32": args.tf32,
               "machine": machine_facts(device),
               "td3_updates_per_second": td3_rate(params, device, count),
               "pbrl_updates_per_second": pbrl_rates(profile, device, count),
-              "pbrl_group_updates_per_second": pbrl_group_rates(profile, device, count),
+              "pbrl_group_updates_per_second": pbrl_group_rates(profile, device, count, teacher_sizes),
               "pbrl_multitask_updates_per_second": multitask_rate(profile, device, count),
-              "student_group_updates_per_second": student_rates(profile, params, device, count),
+              "student_group_updates_per_second": student_rates(profile, params, device, count, student_sizes),
               "rollout_control_steps_per_second": rollout_rate(profile, device),
               "single_env_control_steps_per_second": rollout_rate(profile, device, envs=1),
               "parallel_rollout_workers": available_cores(),
               "parallel_rollout_control_steps_per_second": parallel_rollout_rate(profile, available_cores())}
     if device.type == "cuda":  # what the captured updates buy: the same groups eager (R = 8)
+        result["pbrl_group_memory"] = pbrl_group_footprint(profile, params, device)
         result["pbrl_group_eager_updates_per_second"] = pbrl_group_rates(profile, device, count, (8,), False)
         result["student_group_eager_updates_per_second"] = student_rates(profile, params, device, count, (8,), False)
         result["pbrl_multitask_eager_updates_per_second"] = multitask_rate(profile, device, count, False)
@@ -208,6 +241,15 @@ def main() -> None:
             print(f"{name}: CUDA graphs {captured:.0f} updates/s, eager {eager:.0f}: {captured / eager:.2f}x")
     ratio = result["parallel_rollout_control_steps_per_second"] / result["rollout_control_steps_per_second"]
     print(f"rollouts over {result['parallel_rollout_workers']} processes: {ratio:.2f}x one process's batched rate")
+    for name, unit in (("pbrl_group", "teacher"), ("student_group", "student")):  # does a larger group pay?
+        for kind, by_r in result[f"{name}_updates_per_second"].items():
+            runs = ", ".join(f"R = {r}: {rate * int(r):.0f}" for r, rate in by_r.items())
+            print(f"{name} {kind}: {unit} updates/s summed over the group's runs, {runs}")
+    memory = result.get("pbrl_group_memory")
+    if memory:
+        print(f"teacher group memory: {memory['fixed_bytes'] / 2**30:.2f} GiB fixed + "
+              f"{memory['per_run_bytes'] / 2**30:.2f} GiB per run; the profile's entry of {memory['entry_runs']} "
+              f"runs trains in waves {memory['entry_waves']} on this card")
     if args.out:
         Path(args.out).write_text(json.dumps(result, indent=1) + "\n")
 

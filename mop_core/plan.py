@@ -14,8 +14,10 @@ Assumptions, printed with the table: the runs of a stage execute one after anoth
 (dvc repro runs one stage at a time; the collect stage's task processes and a distill entry's seeds
 are the exceptions it models); a student group of R seeds, and a train_teachers or
 train_relabelled_teachers entry's vectorised group of R teachers, costs the time per update
-interpolated between the measured R = 1 and R = 8 (on CUDA: updates replayed as CUDA graphs; a rates
-file without group rates: R single teachers); the multi-task baseline updates at its own measured rate
+interpolated between the group sizes measured (R = 1, 8 and the profile's entry sizes; on CUDA:
+updates replayed as CUDA graphs; a rates file without group rates: R single teachers), as one group
+(a card without room for it trains it in waves, mop_core.learning.group_memory, which this does not
+model); the multi-task baseline updates at its own measured rate
 where the rates file has it (else a single teacher's); the KL loss costs what MSE does (the same network, no critic);
 collect steps one walker per TD3 update at the single-environment rate; the common-structure students
 (distill_width, distill_ranking) cost what plain MSE students do (no rate is measured for other widths
