@@ -241,17 +241,23 @@ def train_teacher_group(jobs: Sequence[TeacherJob], config: TeacherConfig, study
 
 
 def teacher_footprint(config: TeacherConfig, data: TransitionTensors, device: torch.device) -> GroupFootprint | None:
-    """A teacher group's device memory per run and fixed (:func:`~mop_core.learning.group_memory.measure_footprint`:
-    throwaway groups of one and two runs on ``data``, stepped until every captured variant replays); None off CUDA."""
+    """A teacher group's device memory per run and fixed (:func:`~mop_core.learning.group_memory.measure_footprint`
+    of :func:`teacher_probe`); None off CUDA."""
+    return measure_footprint(teacher_probe(config, data, device), device)
+
+
+def teacher_probe(config: TeacherConfig, data: TransitionTensors, device: torch.device) -> Callable[[int], None]:
+    """``probe(R)``: a throwaway group of R teachers on ``data``, stepped until every captured variant replays
+    (two eager warm-ups and a capture of each); what the footprint is measured on."""
     pbrl = config.pbrl
 
     def step_group(runs: int) -> None:
         group = PBRLGroup(pbrl, OBS_DIM, ACT_DIM, list(range(runs)), device)
         sampler = torch.Generator(device).manual_seed(0)
-        for _ in range(3 * pbrl.policy_delay):  # two eager warm-ups and a capture of each variant
+        for _ in range(3 * pbrl.policy_delay):
             group.update(stack_batches([data.sample(pbrl.batch_size, sampler) for _ in range(runs)]))
 
-    return measure_footprint(step_group, device)
+    return step_group
 
 
 def _train_wave(jobs: Sequence[TeacherJob], data: Sequence[tuple[TransitionTensors, dict]], config: TeacherConfig,

@@ -23,6 +23,7 @@ from mop_core.teachers import (
     load_source,
     load_sources,
     load_teacher,
+    teacher_probe,
     train_multitask,
     train_teacher,
     train_teacher_group,
@@ -135,6 +136,7 @@ def test_a_teacher_group_trains_each_run_as_it_would_train_alone(sources, tmp_pa
     records = train_teacher_group(jobs, config, 0, tmp_path / "group-resume.pt", timing)
     assert json.loads(timing.read_text())["runs"] == 4 and not (tmp_path / "group-resume.pt").exists()
     if actor == "deterministic":  # a group too large for its device trains in waves: the same runs
+        teacher_probe(config, load_sources(jobs[0].sources, config.episode_length, "cpu")[0], "cpu")(2)  # runs here
         waved = [replace(job, paths=_paths(tmp_path / "waves" / f"{job.task}-{job.seed}")) for job in jobs]
         wave_records = train_teacher_group(waved, config, 0, tmp_path / "waves-resume.pt", timing, max_group=3)
         assert json.loads(timing.read_text())["waves"] == [2, 2] and not list(tmp_path.glob("waves-resume*"))
