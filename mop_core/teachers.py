@@ -28,7 +28,7 @@ from mop_core.experiment.runs import TeacherRun, sharing_teacher_entry, teacher_
 from mop_core.experiment.study import StudyConfig, teacher_grid
 from mop_core.learning.group_memory import GroupFootprint, device_room, measure_footprint, split_waves, wave_sizes
 from mop_core.learning.nn import EnsembleCritic, numpy_policy
-from mop_core.learning.resume import run_fingerprint
+from mop_core.learning.resume import run_fingerprint, write_resume
 from mop_core.learning.runtime import derive_seeds
 from mop_core.learning.schedule import TrainSchedule, scheduled_rate, set_learning_rate
 from mop_core.learning.step_metrics import run_key, split_runs
@@ -227,10 +227,12 @@ def train_teacher_group(jobs: Sequence[TeacherJob], config: TeacherConfig, study
         wave_resume = resume if len(sizes) == 1 else resume.with_name(f"{resume.stem}-wave{k}{resume.suffix}")
         wave_records, wave_seconds, resumed_from = _train_wave(
             [jobs[r] for r in wave], [data[r] for r in wave], config, study_seed, wave_resume, device, progress,
-            name if len(sizes) == 1 else f"{name} wave {k + 1}/{len(sizes)}")
+            name if len(sizes) == 1 else f"{name} wave {k + 1}/{len(sizes)}", keep=k + 1 < len(sizes))
         records += wave_records
         seconds += wave_seconds
         resumed.append(resumed_from)
+    for k in range(len(sizes) if len(sizes) > 1 else 0):  # every wave done: the finished waves' files go
+        resume.with_name(f"{resume.stem}-wave{k}{resume.suffix}").unlink(missing_ok=True)
     if timing is not None:
         steps = config.schedule.steps * len(sizes)  # group steps: every wave's
         waves = {} if len(sizes) == 1 else {"waves": sizes}  # a whole group writes what it always wrote
@@ -261,9 +263,11 @@ def teacher_probe(config: TeacherConfig, data: TransitionTensors, device: torch.
 
 
 def _train_wave(jobs: Sequence[TeacherJob], data: Sequence[tuple[TransitionTensors, dict]], config: TeacherConfig,
-                study_seed: int, resume: Path, device: torch.device, progress: bool,
-                name: str) -> tuple[list[dict], float, int]:
-    """One group of :func:`train_teacher_group`: its records, seconds and the step it resumed from."""
+                study_seed: int, resume: Path, device: torch.device, progress: bool, name: str,
+                keep: bool = False) -> tuple[list[dict], float, int]:
+    """One group of :func:`train_teacher_group`: its records, seconds and the step it resumed from. With
+    ``keep`` (waves follow it) its resume file is written again at the last step once its files are, so
+    a rerun after a later wave's interruption restores this wave instead of training it again."""
     seeds = [run_seeds(study_seed, [job.task, summary["source_task"], summary["level"]], job.seed)
              for job, (_, summary) in zip(jobs, data)]
     agent = PBRLGroup(config.pbrl, OBS_DIM, ACT_DIM, [s["agent"] for s in seeds], device)
@@ -303,6 +307,9 @@ def _train_wave(jobs: Sequence[TeacherJob], data: Sequence[tuple[TransitionTenso
             "actor_sha256": state_sha256(actor_state), "dataset": summary, "metrics": metrics}
         records.append(finish_run(replace(job.paths, timing=None, resume=resume), checkpoint, list(curves[r]), metrics,
                                   seconds, sched.steps, resumed_from, device))
+    if keep:
+        write_resume(resume, fingerprint, sched.steps, learner.state_dict(), seconds, f"teachers {name}",
+                     sampler=None, curve=list(group_curve), losses={})
     return records, seconds, resumed_from
 
 

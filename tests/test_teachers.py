@@ -158,6 +158,38 @@ def test_a_teacher_group_trains_each_run_as_it_would_train_alone(sources, tmp_pa
         assert group_curve[0] == alone_curve[0] and len(group_curve) == len(alone_curve)  # same columns
 
 
+def test_a_rerun_after_an_interrupted_wave_restores_the_finished_waves(sources, tmp_path, monkeypatch):
+    """Waves [1, 1]: the second is interrupted; the rerun restores the first from its kept resume file
+    (no update of it again), resumes the second, and ends with the uninterrupted run's weights and no
+    wave resume file."""
+    config = _config()
+    jobs = [TeacherJob("stand", sources["stand"], seed, _paths(tmp_path / "ref" / str(seed))) for seed in (0, 1)]
+    train_teacher_group(jobs, config, 0, tmp_path / "ref.pt", None, max_group=1)
+    jobs = [replace(job, paths=_paths(tmp_path / "run" / str(job.seed))) for job in jobs]
+    original, calls = PBRLGroup.update, {"n": 0}
+
+    def interrupt(self, *args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 40 + 26:  # the second wave, after its step-20 resume file
+            raise KeyboardInterrupt
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(PBRLGroup, "update", interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        train_teacher_group(jobs, config, 0, tmp_path / "run.pt", None, max_group=1)
+    monkeypatch.setattr(PBRLGroup, "update", original)
+    assert sorted(p.name for p in tmp_path.glob("run-wave*")) == ["run-wave0.pt", "run-wave1.pt"]
+    timing = tmp_path / "timing.json"
+    train_teacher_group(jobs, config, 0, tmp_path / "run.pt", timing, max_group=1)
+    assert json.loads(timing.read_text())["resumed_from_step"] == [40, 20]
+    assert not list(tmp_path.glob("run-wave*"))
+    for seed in (0, 1):
+        found, reference = (torch.load(tmp_path / d / str(seed) / "teacher.pt", weights_only=False)
+                            for d in ("run", "ref"))
+        for name, tensor in reference["actor"].items():
+            torch.testing.assert_close(found["actor"][name], tensor, rtol=0, atol=0)
+
+
 def test_resume_file_of_another_config_or_a_broken_one_restarts_cleanly(sources, tmp_path, capsys):
     paths = _paths(tmp_path)
     paths.resume.parent.mkdir(parents=True)
