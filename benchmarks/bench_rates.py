@@ -56,11 +56,13 @@ GROUP_SIZES = (1, 8)
 
 def profile_group_sizes(params: dict) -> tuple[tuple[int, ...], tuple[int, ...]]:
     """The group sizes to measure for a profile: teachers at 1, 8, its entry's runs (tasks x seeds) and
-    twice that (would a larger group, e.g. both actor types of a level, pay?); students at 1, 8 and an
-    entry's seeds. The plan interpolates between measured sizes, so the profile's own are measured."""
+    twice that (would a larger group, e.g. both actor types of a level, pay?); students at 1, 8, an
+    entry's seeds and a loss's every pairing and seed (would one group per loss of the distill stage
+    pay?). The plan interpolates between measured sizes, so the profile's own are measured."""
     entry = len(params["study"]["tasks"]) * len(params["train_teachers"]["seeds"])
+    seeds = len(params["distill"]["seeds"])
     return (tuple(sorted({*GROUP_SIZES, entry, 2 * entry})),
-            tuple(sorted({*GROUP_SIZES, len(params["distill"]["seeds"])})))
+            tuple(sorted({*GROUP_SIZES, seeds, seeds * len(params["distill"]["pairings"])})))
 
 
 def pbrl_group_footprint(profile: Path, params: dict, device: torch.device) -> dict | None:
