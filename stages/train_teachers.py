@@ -7,9 +7,8 @@ together as one vectorised group (a `matrix` entry per level and actor type).
 Teacher <task>-<level>-<actor>-<seed> reads D_{i->i} (data/datasets/<task>-<level>.hdf5 with
 data/relabelled/<task>-<level>.hdf5's rewards for <task>) and writes data/teachers/<level>-<actor>/<name>.pt
 (config, actor, critics), results/teachers/metrics/<level>-<actor>/<name>.json and the learning curve
-results/teachers/curves/<level>-<actor>/<name>.tsv. --tasks / --seeds retrain a subset (a group of one:
-one teacher alone). A rerun after an interruption resumes from data/resume/teachers-<level>-<actor>.pt
-(-wave<k>.pt per wave where a GPU holds fewer runs than the entry has: mop_core.learning.group_memory).
+results/teachers/curves/<level>-<actor>/<name>.tsv. --tasks / --seeds retrain a subset. A rerun resumes from
+data/resume/teachers-<level>-<actor>.pt (-wave<k>.pt where a GPU holds fewer runs: learning.group_memory).
 
 ``--sharing`` trains the data_sharing section's teachers on relabelled data (deterministic, seed
 distill.teacher_seed): ``ds``, per task i one on the union over every task j of D_{j->i}; ``oqs``, per
