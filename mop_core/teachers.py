@@ -231,8 +231,8 @@ def train_teacher_group(jobs: Sequence[TeacherJob], config: TeacherConfig, study
         records += wave_records
         seconds += wave_seconds
         resumed.append(resumed_from)
-    for k in range(len(sizes) if len(sizes) > 1 else 0):  # every wave done: the finished waves' files go
-        resume.with_name(f"{resume.stem}-wave{k}{resume.suffix}").unlink(missing_ok=True)
+    for kept in resume.parent.glob(f"{resume.stem}-wave*{resume.suffix}"):  # every run done: the finished
+        kept.unlink(missing_ok=True)  # waves' files go, and those of an earlier split (another device's room)
     if timing is not None:
         steps = config.schedule.steps * len(sizes)  # group steps: every wave's
         waves = {} if len(sizes) == 1 else {"waves": sizes}  # a whole group writes what it always wrote

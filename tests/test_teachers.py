@@ -179,6 +179,7 @@ def test_a_rerun_after_an_interrupted_wave_restores_the_finished_waves(sources, 
         train_teacher_group(jobs, config, 0, tmp_path / "run.pt", None, max_group=1)
     monkeypatch.setattr(PBRLGroup, "update", original)
     assert sorted(p.name for p in tmp_path.glob("run-wave*")) == ["run-wave0.pt", "run-wave1.pt"]
+    (tmp_path / "run-wave7.pt").write_bytes(b"a wave of an earlier split")
     timing = tmp_path / "timing.json"
     train_teacher_group(jobs, config, 0, tmp_path / "run.pt", timing, max_group=1)
     assert json.loads(timing.read_text())["resumed_from_step"] == [40, 20]
