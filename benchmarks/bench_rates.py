@@ -36,7 +36,7 @@ from bench_distill import profile as distill_profile
 from bench_pbrl import pbrl_config, random_batch
 
 from mop_core.agents.pbrl import PBRL
-from mop_core.agents.pbrl_group import PBRLGroup, stack_batches
+from mop_core.agents.pbrl_group import PBRLGroup, probe_group, stack_batches
 from mop_core.agents.pbrl_multitask import MultiTaskPBRL
 from mop_core.agents.td3 import TD3, TD3Config
 from mop_core.config import from_mapping
@@ -71,13 +71,8 @@ def pbrl_group_footprint(profile: Path, params: dict, device: torch.device) -> d
     (:mod:`mop_core.learning.group_memory`); None elsewhere."""
     config = replace(pbrl_config(profile), actor="deterministic")
 
-    def step_group(runs: int) -> None:
-        group = PBRLGroup(config, 24, 6, list(range(runs)), device)
-        batch = stack_batches([random_batch(config.batch_size, seed) for seed in range(runs)]).to(device)
-        for _ in range(3 * config.policy_delay):  # every variant warmed up and captured
-            group.update(batch)
-
-    footprint = measure_footprint(step_group, device)
+    footprint = measure_footprint(probe_group(config, 24, 6, lambda runs: stack_batches(
+        [random_batch(config.batch_size, seed) for seed in range(runs)]).to(device), device), device)
     if footprint is None:
         return None
     entry = profile_group_sizes(params)[0][-1] // 2

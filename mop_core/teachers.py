@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from mop_core.agents.pbrl import PBRLConfig, make_actor
-from mop_core.agents.pbrl_group import PBRLGroup, stack_batches
+from mop_core.agents.pbrl_group import PBRLGroup, probe_group, stack_batches
 from mop_core.agents.pbrl_multitask import MultiTaskPBRL
 from mop_core.config import ConfigError, InputFileError, from_mapping, keys_under, require, to_dict
 from mop_core.data.buffer import TransitionTensors
@@ -224,14 +224,14 @@ def train_teacher_group(jobs: Sequence[TeacherJob], config: TeacherConfig, study
                        f"a teacher of {name}", max_group)
     records, seconds, resumed = [], 0.0, []
     for k, wave in enumerate(split_waves(list(range(len(jobs))), sizes)):
-        wave_resume = resume if len(sizes) == 1 else resume.with_name(f"{resume.stem}-wave{k}{resume.suffix}")
+        wave_resume = resume if len(sizes) == 1 else _wave_file(resume, k)
         wave_records, wave_seconds, resumed_from = _train_wave(
             [jobs[r] for r in wave], [data[r] for r in wave], config, study_seed, wave_resume, device, progress,
             name if len(sizes) == 1 else f"{name} wave {k + 1}/{len(sizes)}", keep=k + 1 < len(sizes))
         records += wave_records
         seconds += wave_seconds
         resumed.append(resumed_from)
-    for kept in resume.parent.glob(f"{resume.stem}-wave*{resume.suffix}"):  # every run done: the finished
+    for kept in resume.parent.glob(_wave_file(resume, "*").name):  # every run done: the finished
         kept.unlink(missing_ok=True)  # waves' files go, and those of an earlier split (another device's room)
     if timing is not None:
         steps = config.schedule.steps * len(sizes)  # group steps: every wave's
@@ -242,6 +242,11 @@ def train_teacher_group(jobs: Sequence[TeacherJob], config: TeacherConfig, study
     return records
 
 
+def _wave_file(resume: Path, wave: int | str) -> Path:
+    """Wave ``wave``'s resume file beside the entry's ``resume``: ``<stem>-wave<k><suffix>``."""
+    return resume.with_name(f"{resume.stem}-wave{wave}{resume.suffix}")
+
+
 def teacher_footprint(config: TeacherConfig, data: TransitionTensors, device: torch.device) -> GroupFootprint | None:
     """A teacher group's device memory per run and fixed (:func:`~mop_core.learning.group_memory.measure_footprint`
     of :func:`teacher_probe`); None off CUDA."""
@@ -249,17 +254,11 @@ def teacher_footprint(config: TeacherConfig, data: TransitionTensors, device: to
 
 
 def teacher_probe(config: TeacherConfig, data: TransitionTensors, device: torch.device) -> Callable[[int], None]:
-    """``probe(R)``: a throwaway group of R teachers on ``data``, stepped until every captured variant replays
-    (two eager warm-ups and a capture of each); what the footprint is measured on."""
+    """:func:`~mop_core.agents.pbrl_group.probe_group` on minibatches of ``data``: what the footprint is measured on."""
     pbrl = config.pbrl
-
-    def step_group(runs: int) -> None:
-        group = PBRLGroup(pbrl, OBS_DIM, ACT_DIM, list(range(runs)), device)
-        sampler = torch.Generator(device).manual_seed(0)
-        for _ in range(3 * pbrl.policy_delay):
-            group.update(stack_batches([data.sample(pbrl.batch_size, sampler) for _ in range(runs)]))
-
-    return step_group
+    sampler = torch.Generator(device).manual_seed(0)
+    return probe_group(pbrl, OBS_DIM, ACT_DIM, lambda runs: stack_batches(
+        [data.sample(pbrl.batch_size, sampler) for _ in range(runs)]), device)
 
 
 def _train_wave(jobs: Sequence[TeacherJob], data: Sequence[tuple[TransitionTensors, dict]], config: TeacherConfig,

@@ -70,23 +70,20 @@ def test_off_cuda_there_is_no_room_limit_and_nothing_to_measure():
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 def test_a_pbrl_groups_footprint_grows_with_its_runs_and_a_share_caps_the_room(monkeypatch):
     from mop_core.agents.pbrl import PBRLConfig
-    from mop_core.agents.pbrl_group import PBRLGroup, stack_batches
+    from mop_core.agents.pbrl_group import probe_group, stack_batches
     from mop_core.data.buffer import Batch
 
     config = PBRLConfig(hidden_sizes=(256, 256), batch_size=256, ensemble_size=5, ood_actions=3)
     device = torch.device("cuda")
 
-    def step_group(runs: int) -> None:
-        group = PBRLGroup(config, 24, 6, list(range(runs)), device)
-        g = torch.Generator(device).manual_seed(0)
-        for _ in range(3 * config.policy_delay):
-            batch = Batch(torch.randn(256, 24, device=device, generator=g),
-                          torch.rand(256, 6, device=device, generator=g) * 2 - 1,
-                          torch.rand(256, device=device, generator=g), torch.randn(256, 24, device=device, generator=g),
-                          torch.zeros(256, device=device))
-            group.update(stack_batches([batch] * runs))
+    def batch(runs: int) -> Batch:
+        g = torch.Generator(device).manual_seed(runs)
+        one = Batch(torch.randn(256, 24, device=device, generator=g),
+                    torch.rand(256, 6, device=device, generator=g) * 2 - 1, torch.rand(256, device=device, generator=g),
+                    torch.randn(256, 24, device=device, generator=g), torch.zeros(256, device=device))
+        return stack_batches([one] * runs)
 
-    footprint = measure_footprint(step_group, device)
+    footprint = measure_footprint(probe_group(config, 24, 6, batch, device), device)
     assert footprint.per_run > 0
     monkeypatch.setenv(GPU_SHARE_ENV, "0.01")
     assert device_room(device) <= 0.01 * torch.cuda.mem_get_info(device)[1]

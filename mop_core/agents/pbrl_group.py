@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import copy
 import math
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import torch
@@ -323,3 +323,16 @@ class PBRLGroup:
             match_loaded(optimizer, self.graphed is not None, self.device)
         if self.graphed is not None:  # new optimiser tensors: capture again
             self.graphed.reset()
+
+
+def probe_group(config: PBRLConfig, obs_dim: int, act_dim: int, batch: Callable[[int], Batch],
+                device: torch.device | str) -> Callable[[int], None]:
+    """``probe(R)``: a throwaway group of R runs stepped on ``batch(R)`` (``[R, B, ...]``) until every
+    variant of its update has replayed (on CUDA: two eager warm-ups and a capture of each); what
+    :func:`~mop_core.learning.group_memory.measure_footprint` measures a group's memory on."""
+    def probe(runs: int) -> None:
+        group = PBRLGroup(config, obs_dim, act_dim, list(range(runs)), device)
+        for _ in range(3 * config.policy_delay):
+            group.update(batch(runs))
+    return probe
+
