@@ -160,11 +160,15 @@ class PBRLGroup:
         """clip(a + clip(N(0, std^2), -c, c), -1, 1) per run (:func:`mop_core.agents.pbrl.noisy`)."""
         return smoothed_target_action(actions, self._randn(actions.shape[1:]) * std, self.config.noise_clip)
 
+    def _actor_input(self, obs: torch.Tensor) -> torch.Tensor:
+        """What the actors read of states ``obs [R, B, o]``: the states (a task-conditioned group adds its task id)."""
+        return obs
+
     def _policy(self, actor: ActorGroup, obs: torch.Tensor, repeats: int) -> torch.Tensor:
         """``repeats`` actions per state ``[R, B*repeats, a]`` (:func:`mop_core.agents.pbrl.policy_actions`)."""
         if actor.gaussian:
-            return actor.rsample(obs, self._randn, repeats)[0]
-        actions = actor(obs)
+            return actor.rsample(self._actor_input(obs), self._randn, repeats)[0]
+        actions = actor(self._actor_input(obs))
         return actions.repeat_interleave(repeats, dim=1) if repeats > 1 else actions
 
     def _q(self, critic: EnsembleCritic, obs: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
@@ -208,14 +212,16 @@ class PBRLGroup:
                         "q_std": ensemble_std(q).mean(dim=-1)}
         return (loss_in + loss_ood).sum(), metrics
 
-    def actor_loss(self, obs: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor | None]:
-        """sum over runs of :func:`mop_core.agents.pbrl.actor_objective`; per-run metrics and entropies."""
+    def actor_loss(self, obs: torch.Tensor, randn: Callable[[Sequence[int]], torch.Tensor] | None = None
+                   ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor | None]:
+        """sum over runs of :func:`mop_core.agents.pbrl.actor_objective`; per-run metrics and entropies.
+        ``randn``: the Gaussian actors' draws ``[R, *shape]`` (None: the runs' own generators)."""
         alpha = self.alpha()
         entropy = None
         if self.actor.gaussian:
-            actions, entropy = self.actor.rsample(obs, self._randn)
+            actions, entropy = self.actor.rsample(self._actor_input(obs), randn or self._randn)
         else:
-            actions = self.actor(obs)
+            actions = self.actor(self._actor_input(obs))
         self.critic.requires_grad_(False)
         try:
             q = self._q(self.critic, obs, actions).min(dim=0).values  # [R, B]
