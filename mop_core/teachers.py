@@ -20,13 +20,14 @@ import torch
 from mop_core.agents.pbrl import PBRLConfig, make_actor
 from mop_core.agents.pbrl_group import PBRLGroup, probe_group, stack_batches
 from mop_core.agents.pbrl_multitask import MultiTaskPBRL
+from mop_core.agents.pbrl_multitask_group import MultiTaskPBRLGroup, probe_multitask_group
 from mop_core.config import ConfigError, InputFileError, from_mapping, keys_under, require, to_dict
 from mop_core.data.buffer import TransitionTensors
 from mop_core.data.hdf5 import read_dataset, read_relabel
 from mop_core.experiment.catalogue import build_catalogue
-from mop_core.experiment.runs import TeacherRun, sharing_teacher_entry, teacher_entry
+from mop_core.experiment.runs import MultitaskRun, TeacherRun, sharing_teacher_entry, teacher_entry
 from mop_core.experiment.study import StudyConfig, teacher_grid
-from mop_core.learning.group_memory import GroupFootprint, device_room, measure_footprint, split_waves, wave_sizes
+from mop_core.learning.group_memory import device_room, measure_footprint, split_waves, wave_sizes
 from mop_core.learning.nn import EnsembleCritic, numpy_policy
 from mop_core.learning.resume import run_fingerprint, write_resume
 from mop_core.learning.runtime import derive_seeds
@@ -220,23 +221,38 @@ def train_teacher_group(jobs: Sequence[TeacherJob], config: TeacherConfig, study
             loaded[job.sources] = load_sources(job.sources, config.episode_length, device)
             check_batch_fits(config, loaded[job.sources][1])
     data = [loaded[j.sources] for j in jobs]
-    sizes = wave_sizes(len(jobs), teacher_footprint(config, data[0][0], device), device_room(device),
-                       f"a teacher of {name}", max_group)
+    probe = teacher_probe(config, data[0][0], device)
+
+    def train_wave(wave: list[int], wave_resume: Path, wave_name: str, keep: bool) -> tuple[list[dict], float, int]:
+        return _train_wave([jobs[r] for r in wave], [data[r] for r in wave], config, study_seed, wave_resume, device,
+                           progress, wave_name, keep)
+    return train_in_waves(len(jobs), probe, device, f"a teacher of {name}", max_group, resume, timing,
+                          config.schedule.steps, name, train_wave)
+
+
+def train_in_waves(runs: int, probe: Callable[[int], None], device: torch.device, what: str, max_group: int | None,
+                   resume: Path, timing: Path | None, steps: int, name: str,
+                   train_wave: Callable[[list[int], Path, str, bool], tuple[list[dict], float, int]]) -> list[dict]:
+    """Train ``runs`` runs of one entry as one vectorised group, or in waves where the device has no room for
+    all (``probe(R)`` steps a throwaway group of R: :mod:`mop_core.learning.group_memory`) or ``max_group``
+    caps them. ``train_wave(runs, resume, name, keep)`` trains the runs given and returns their records,
+    its seconds and the step it resumed from; a wave's resume file is ``<resume>-wave<k>``, kept (``keep``)
+    until every wave is done. Writes the entry's timing record (``steps`` per wave); returns the records."""
+    sizes = wave_sizes(runs, measure_footprint(probe, device), device_room(device), what, max_group)
     records, seconds, resumed = [], 0.0, []
-    for k, wave in enumerate(split_waves(list(range(len(jobs))), sizes)):
+    for k, wave in enumerate(split_waves(list(range(runs)), sizes)):
         wave_resume = resume if len(sizes) == 1 else _wave_file(resume, k)
-        wave_records, wave_seconds, resumed_from = _train_wave(
-            [jobs[r] for r in wave], [data[r] for r in wave], config, study_seed, wave_resume, device, progress,
-            name if len(sizes) == 1 else f"{name} wave {k + 1}/{len(sizes)}", keep=k + 1 < len(sizes))
+        wave_records, wave_seconds, resumed_from = train_wave(
+            wave, wave_resume, name if len(sizes) == 1 else f"{name} wave {k + 1}/{len(sizes)}", k + 1 < len(sizes))
         records += wave_records
         seconds += wave_seconds
         resumed.append(resumed_from)
     for kept in resume.parent.glob(_wave_file(resume, "*").name):  # every run done: the finished
         kept.unlink(missing_ok=True)  # waves' files go, and those of an earlier split (another device's room)
     if timing is not None:
-        steps = config.schedule.steps * len(sizes)  # group steps: every wave's
+        steps *= len(sizes)  # group steps: every wave's
         waves = {} if len(sizes) == 1 else {"waves": sizes}  # a whole group writes what it always wrote
-        write_timing(timing, seconds, device, steps=steps, runs=len(jobs), **waves,
+        write_timing(timing, seconds, device, steps=steps, runs=runs, **waves,
                      steps_per_second=per_second(steps, seconds),
                      resumed_from_step=resumed[0] if len(resumed) == 1 else resumed)
     return records
@@ -245,12 +261,6 @@ def train_teacher_group(jobs: Sequence[TeacherJob], config: TeacherConfig, study
 def _wave_file(resume: Path, wave: int | str) -> Path:
     """Wave ``wave``'s resume file beside the entry's ``resume``: ``<stem>-wave<k><suffix>``."""
     return resume.with_name(f"{resume.stem}-wave{wave}{resume.suffix}")
-
-
-def teacher_footprint(config: TeacherConfig, data: TransitionTensors, device: torch.device) -> GroupFootprint | None:
-    """A teacher group's device memory per run and fixed (:func:`~mop_core.learning.group_memory.measure_footprint`
-    of :func:`teacher_probe`); None off CUDA."""
-    return measure_footprint(teacher_probe(config, data, device), device)
 
 
 def teacher_probe(config: TeacherConfig, data: TransitionTensors, device: torch.device) -> Callable[[int], None]:
@@ -312,69 +322,121 @@ def _train_wave(jobs: Sequence[TeacherJob], data: Sequence[tuple[TransitionTenso
     return records, seconds, resumed_from
 
 
-def train_multitask(tasks: Sequence[str], sources: Sequence[DataSource], config: TeacherConfig, seed: int,
-                    study_seed: int, paths: RunPaths, device: torch.device | str = "cpu",
-                    progress: bool = False) -> dict:
-    """Train the naive multi-task PBRL baseline: one shared actor, a critic per task, tasks alternating.
+class _MultitaskLearner(_GroupLearner):
+    """A :class:`MultiTaskPBRLGroup` with each task's data (``data[i]``) and each run's index generator: one
+    ``update()`` is one PBRL step of every task in turn, run r's batch drawn with run r's generator (as the
+    run alone draws it); curve columns ``<key>_<task>``."""
+
+    def update(self) -> dict:
+        agent, tasks, metrics = self.agent, self.agent.tasks, {}
+        anneal(agent, agent.updates // len(tasks), self.steps)  # the schedule counts steps per task
+        for _ in tasks:  # one update per task, in the agent's alternating order
+            i = agent.next_task
+            step = agent.update(stack_batches([self.data[i].sample(self.batch_size, g) for g in self.samplers]), i)
+            metrics |= {_per_task(key, tasks[i]): value for key, value in step.items()}
+        return metrics
+
+
+def _per_task(key: str, task: str) -> str:
+    """A step metric of task ``task``'s update as a curve column: ``q_mean@0`` -> ``q_mean_<task>@0``."""
+    name, at, run = key.partition("@")
+    return f"{name}_{task}{at}{run}"
+
+
+def train_multitask(tasks: Sequence[str], sources: Sequence[DataSource], config: TeacherConfig, seeds: Sequence[int],
+                    study_seed: int, paths: Sequence[RunPaths], resume: Path, timing: Path | None,
+                    device: torch.device | str = "cpu", progress: bool = False, name: str = "multitask",
+                    max_group: int | None = None) -> list[dict]:
+    """Train the naive multi-task PBRL baseline once per seed of ``seeds``: one shared actor, a critic per
+    task, tasks alternating; the seeds as one vectorised group
+    (:class:`~mop_core.agents.pbrl_multitask_group.MultiTaskPBRLGroup`), in waves where the device has no
+    room for all (:func:`train_in_waves`). Writes run r's checkpoint, curve and metrics (``paths[r]``), the
+    group's resume file and timing record; returns the metrics records, one per seed.
 
     ``sources[i]`` is task i's dataset read with task i's rewards. ``schedule`` counts steps *per
     task*: one step of the loop is one PBRL update of every task in turn (the agent alternates tasks),
     so each critic trains as long as a single-task teacher's and the learning curve's ``step`` column
-    is on the teachers' axis (thesis Figure 5.3 draws both against per-task steps).
+    is on the teachers' axis (thesis Figure 5.3 draws both against per-task steps). Run r draws what it
+    would draw alone (seeds from (study seed, tasks, level, its seed)): a group equals its runs trained
+    alone to float rounding (tested).
     """
     tasks = check_task_list(tasks, "tasks")
-    if len(sources) != len(tasks):
-        raise ValueError(f"sources: expected one per task ({len(tasks)}), got {len(sources)}")
+    require(len(sources) == len(tasks), "sources", f"one per task ({len(tasks)})", len(sources))
+    require(len(seeds) > 0 and len(paths) == len(seeds), "paths", f"one per seed of {list(seeds)}", len(paths))
     device = torch.device(device)
     loaded = [load_source(source, config.episode_length, device) for source in sources]
     for _, summary in loaded:
         check_batch_fits(config, summary)
+    pbrl, data = config.pbrl, [tensors for tensors, _ in loaded]
+    sampler = torch.Generator(device).manual_seed(0)
+    probe = probe_multitask_group(pbrl, tasks, OBS_DIM, ACT_DIM, lambda runs: stack_batches(
+        [data[0].sample(pbrl.batch_size, sampler) for _ in range(runs)]), device)
+
+    def train_wave(wave: list[int], wave_resume: Path, wave_name: str, keep: bool) -> tuple[list[dict], float, int]:
+        return _train_multitask_wave(tasks, loaded, config, [seeds[r] for r in wave], study_seed,
+                                     [paths[r] for r in wave], wave_resume, device, progress, wave_name, keep)
+    return train_in_waves(len(seeds), probe, device, f"a multi-task baseline of {name}", max_group, resume, timing,
+                          config.schedule.steps, name, train_wave)
+
+
+def _train_multitask_wave(tasks: tuple[str, ...], loaded: Sequence[tuple[TransitionTensors, dict]],
+                          config: TeacherConfig, run_seeds_: Sequence[int], study_seed: int, paths: Sequence[RunPaths],
+                          resume: Path, device: torch.device, progress: bool, name: str, keep: bool
+                          ) -> tuple[list[dict], float, int]:
+    """One group of :func:`train_multitask` (``keep``: as :func:`_train_wave`)."""
     level = "+".join(summary["level"] for _, summary in loaded)
-    seeds = run_seeds(study_seed, ["multitask", *tasks, level], seed)
-    agent = MultiTaskPBRL(config.pbrl, tasks, OBS_DIM, ACT_DIM, seeds["agent"], device)
-    sampler = torch.Generator(device).manual_seed(seeds["sampler"])
-    sched = config.schedule
-    policies = [numpy_policy(agent.actor, device, i, len(tasks)) for i in range(len(tasks))]
+    seeds = [run_seeds(study_seed, ["multitask", *tasks, level], seed) for seed in run_seeds_]
+    agent = MultiTaskPBRLGroup(config.pbrl, tasks, OBS_DIM, ACT_DIM, [s["agent"] for s in seeds], device)
+    samplers = [torch.Generator(device).manual_seed(s["sampler"]) for s in seeds]
+    sched, runs = config.schedule, len(seeds)
+    learner = _MultitaskLearner(agent, [tensors for tensors, _ in loaded], samplers, config.pbrl.batch_size,
+                                sched.steps)
 
-    def update() -> dict:
-        metrics = {}
-        anneal(agent, agent.updates // len(tasks), sched.steps)  # the schedule counts steps per task
-        for _ in tasks:  # one update per task, in the agent's alternating order
-            task_index = agent.next_task
-            step = agent.update(loaded[task_index][0].sample(config.pbrl.batch_size, sampler), task_index)
-            metrics |= {f"{key}_{tasks[task_index]}": value for key, value in step.items()}
-        return metrics
+    def episodes(run: int, task: int, key: str, count: int) -> np.ndarray:
+        policy = numpy_policy(agent.member_actor(run), device, task, len(tasks))
+        return episode_returns(policy, tasks[task], [seeds[run][key] + j for j in range(count)], config.episode_length,
+                               sched.rollout_envs)
 
-    def evaluate(eval_seeds: list[int]) -> dict[str, float]:
-        row = {}
-        for i, task in enumerate(tasks):
-            stats = returns_summary(episode_returns(policies[i], task, eval_seeds, config.episode_length,
-                                                     sched.rollout_envs))
-            row |= {f"{key}_{task}": value for key, value in stats.items()}
-        row["return_mean"] = float(np.mean([row[f"return_mean_{task}"] for task in tasks]))
+    def evaluate(_: list[int]) -> dict[str, float]:  # each run on every task with its own episode seeds
+        rows = [{f"{key}_{task}": value for i, task in enumerate(tasks)
+                 for key, value in returns_summary(episodes(r, i, "eval", sched.eval_episodes)).items()}
+                for r in range(runs)]
+        for row in rows:
+            row["return_mean"] = float(np.mean([row[f"return_mean_{task}"] for task in tasks]))
         if len(tasks) > 1:  # the shared actor's gradient conflict, on batches of a stream of their own per step
-            draws = torch.Generator(device).manual_seed(seeds["conflict"] + agent.updates)
-            row |= agent.gradient_cosines([data.sample(config.pbrl.batch_size, draws) for data, _ in loaded], draws)
-        return row
+            draws = [torch.Generator(device).manual_seed(s["conflict"] + agent.updates) for s in seeds]
+            batches = [[data.sample(config.pbrl.batch_size, g) for data, _ in loaded] for g in draws]
+            cosines = agent.gradient_cosines([stack_batches([b[i] for b in batches]) for i in range(len(tasks))],
+                                             draws)
+            rows = [row | cosine for row, cosine in zip(rows, cosines)]
+        group_row = {run_key(k, r): v for r, row in enumerate(rows) for k, v in row.items()}
+        return group_row | {"return_mean": float(np.mean([row["return_mean"] for row in rows]))}
 
-    fingerprint = run_fingerprint({"tasks": tasks, "config": to_dict(config), "seed": seed, "study_seed": study_seed,
-                                "data": [s["content_sha256"] for _, s in loaded]})
-    curve, seconds, resumed_from = train_loop(agent, update, evaluate, sched, seeds, sampler, paths.resume, fingerprint,
-                                              f"multitask {level}-{seed}", progress)
-    final_seeds = [seeds["final_eval"] + i for i in range(sched.final_eval_episodes)]
-    metrics: dict = {"tasks": list(tasks), "level": level, "seed": seed, "gradient_steps_per_task": sched.steps}
-    for i, (task, (_, summary)) in enumerate(zip(tasks, loaded)):
-        final = episode_returns(policies[i], task, final_seeds, config.episode_length, sched.rollout_envs)
-        metrics[task] = {"return_mean": float(final.mean()), "return_std": float(final.std()),
-                         "eval_episodes": len(final), "dataset_return_mean": summary["return_mean"]}
-    actor_state = {k: v.cpu() for k, v in agent.actor.state_dict().items()}
-    return finish_run(paths, {
-        "kind": MULTITASK_KIND, "tasks": list(tasks), "level": level, "seed": seed, "study_seed": study_seed,
-        "pbrl_config": to_dict(config.pbrl), "episode_length": config.episode_length, "obs_dim": OBS_DIM,
-        "act_dim": ACT_DIM, "actor": actor_state,
-        "critics": [{k: v.cpu() for k, v in c.critic.state_dict().items()} for c in agent.critics],
-        "actor_sha256": state_sha256(actor_state), "datasets": [s for _, s in loaded], "metrics": metrics},
-        curve, metrics, seconds, sched.steps, resumed_from, device)
+    fingerprint = run_fingerprint({"tasks": tasks, "config": to_dict(config), "seeds": list(run_seeds_),
+                                   "study_seed": study_seed, "data": [s["content_sha256"] for _, s in loaded]})
+    group_curve, seconds, resumed_from = train_loop(learner, learner.update, evaluate, sched, seeds[0], None, resume,
+                                                    fingerprint, f"multitask {name}", progress)
+    curves = list(zip(*(split_runs(row, runs) for row in group_curve))) or [[] for _ in seeds]
+    records = []
+    for r, seed in enumerate(run_seeds_):
+        metrics: dict = {"tasks": list(tasks), "level": level, "seed": seed, "gradient_steps_per_task": sched.steps}
+        for i, (task, (_, summary)) in enumerate(zip(tasks, loaded)):
+            final = episodes(r, i, "final_eval", sched.final_eval_episodes)
+            metrics[task] = {"return_mean": float(final.mean()), "return_std": float(final.std()),
+                             "eval_episodes": len(final), "dataset_return_mean": summary["return_mean"]}
+        actor_state = {k: v.cpu() for k, v in agent.member_actor(r).state_dict().items()}
+        checkpoint = {
+            "kind": MULTITASK_KIND, "tasks": list(tasks), "level": level, "seed": seed, "study_seed": study_seed,
+            "pbrl_config": to_dict(config.pbrl), "episode_length": config.episode_length, "obs_dim": OBS_DIM,
+            "act_dim": ACT_DIM, "actor": actor_state,
+            "critics": [{k: v.cpu() for k, v in agent.member_critic_state(r, i).items()} for i in range(len(tasks))],
+            "actor_sha256": state_sha256(actor_state), "datasets": [s for _, s in loaded], "metrics": metrics}
+        records.append(finish_run(replace(paths[r], timing=None, resume=resume), checkpoint, list(curves[r]), metrics,
+                                  seconds, sched.steps, resumed_from, device))
+    if keep:
+        write_resume(resume, fingerprint, sched.steps, learner.state_dict(), seconds, f"multitask {name}",
+                     sampler=None, curve=list(group_curve), losses={})
+    return records, seconds, resumed_from
 
 
 @dataclass
@@ -479,6 +541,16 @@ def entry_runs(params: Mapping[str, Any], level: str, actor: str, sharing: str |
             require(value in known, flag, f"a subset of the {flag[2:]} of entry {entry}, {list(dict.fromkeys(known))}",
                     value)
     return [run for run in runs if (tasks is None or run.task in tasks) and (seeds is None or run.seed in seeds)]
+
+
+def multitask_runs(params: Mapping[str, Any], level: str, seeds: Sequence[int] | None = None) -> list[MultitaskRun]:
+    """The multi-task baselines of train_multitask entry ``level`` (every seed of that level) among ``seeds``
+    (None: all), in the entry's order; a level or seed the study does not have is refused, naming its flag."""
+    entry = [run for run in build_catalogue(params).multitask if run.level == level]
+    require(bool(entry), "--level", "a level of train_multitask.levels", level)
+    for seed in seeds or ():
+        require(seed in [run.seed for run in entry], "--seeds", f"a subset of {[run.seed for run in entry]}", seed)
+    return [run for run in entry if seeds is None or run.seed in seeds]
 
 
 def group_lines(runs: Sequence[TeacherRun], records: Sequence[Mapping]) -> list[str]:

@@ -243,8 +243,8 @@ def cases() -> list[Case]:  # noqa: C901 (a flat list of cases)
         p.append(Case(f"student checkpoint {how} (eval)", "eval", fault(student_pt), student_pt))
         p.append(Case(f"behaviour snapshot {how}", "eval", fault("data/behaviour/walk/expert.pt"),
                       "data/behaviour/walk/expert.pt"))
-        p.append(Case(f"multitask checkpoint {how}", "eval", fault("data/multitask/medium-0.pt"),
-                      "data/multitask/medium-0.pt"))
+        p.append(Case(f"multitask checkpoint {how}", "eval", fault("data/multitask/medium/medium-0.pt"),
+                      "data/multitask/medium/medium-0.pt"))
         p.append(Case(f"collect metrics {how}", "eval", fault("results/collect/metrics.json"),
                       "results/collect/metrics.json"))
         p.append(Case(f"student metrics {how} (shared_computation)", "shared_computation",

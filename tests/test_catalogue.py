@@ -93,7 +93,7 @@ def test_run_names_groups_and_files(catalogue):
     assert teacher.relabels == (Path("data/relabelled/stand-medium.hdf5"),)
     multitask = catalogue.multitask[0]
     assert multitask.name == "medium-0" and multitask.group == "multitask_medium"
-    assert multitask.paths.checkpoint == Path("data/multitask/medium-0.pt")
+    assert multitask.paths.checkpoint == Path("data/multitask/medium/medium-0.pt")
     assert multitask.reference_group() == "teacher_medium_deterministic"
     student = catalogue.students[2]
     assert student.group == "student_kl_medium" and representation_group("kl", "medium") == "kl_medium"
@@ -132,7 +132,7 @@ def test_eval_jobs_cover_every_policy_and_the_cross_task_teachers(plain_catalogu
                      Job("teacher_medium_deterministic", 0, teacher(task, "deterministic"), task),
                      Job("teacher_medium_gaussian", 0, teacher(task, "gaussian"), task),
                      Job(f"cross_medium_{task}", 0, teacher(task, "deterministic"), other)]
-    expected += [Job("multitask_medium", 0, Path("data/multitask/medium-0.pt"), task, task) for task in TASKS]
+    expected += [Job("multitask_medium", 0, Path("data/multitask/medium/medium-0.pt"), task, task) for task in TASKS]
     for loss in ("mse", "q", "kl"):
         checkpoint = Path(f"data/students/{loss}-medium/{loss}-medium-0.pt")
         expected += [Job(f"student_{loss}_medium", 0, checkpoint, task, task) for task in TASKS]

@@ -1,5 +1,5 @@
-"""Issue 39, part 2: PBRL groups', the multi-task baseline's, student groups' and TD3's updates replayed as CUDA
-graphs equal eager ones.
+"""Issue 39, part 2: PBRL groups', the multi-task baseline's (alone and as a group of seeds), student groups'
+and TD3's updates replayed as CUDA graphs equal eager ones.
 
 On CUDA (MOP_TEST_DEVICE=cuda, benchmarks/gpu_check.sh) a captured group and an eager one of the same
 seeds take the same minibatches under a cosine learning rate; after the warm-up, both variants' capture
@@ -21,6 +21,7 @@ from conftest import TEST_DEVICE
 from mop_core.agents.pbrl import PBRLConfig
 from mop_core.agents.pbrl_group import PBRLGroup, stack_batches
 from mop_core.agents.pbrl_multitask import MultiTaskPBRL
+from mop_core.agents.pbrl_multitask_group import MultiTaskPBRLGroup
 from mop_core.agents.td3 import TD3, TD3Config
 from mop_core.data.buffer import Batch
 from mop_core.distill.config import DistillConfig
@@ -130,6 +131,44 @@ def test_a_captured_multitask_baseline_equals_the_eager_one(actor):
     for key, value in expected.items():
         torch.testing.assert_close(torch.as_tensor(found[key]).float().cpu(), torch.as_tensor(value).float().cpu(),
                                    atol=1e-4, rtol=1e-4, msg=lambda m, k=key: f"metric {k}: {m}")
+
+
+@cuda
+def test_a_captured_multitask_group_equals_the_eager_one():
+    device = torch.device("cuda")
+    tasks = ("stand", "walk", "run")
+    batches = _batches(device, 30)
+    captured = MultiTaskPBRLGroup(_config("gaussian"), tasks, OBS, ACT, SEEDS, device, cuda_graphs=True)
+    eager = MultiTaskPBRLGroup(_config("gaussian"), tasks, OBS, ACT, SEEDS, device, cuda_graphs=False)
+    for step, batch in enumerate(batches):  # 3 tasks x 2 variants: 12 eager, 6 captures, 12 replays
+        for agent in (captured, eager):
+            set_learning_rate(agent.optimizers(), scheduled_rate(1e-3, "cosine", step, 30))
+        found, expected = captured.update(batch, step % 3), eager.update(batch, step % 3)
+    assert len(captured.graphed.graphs) == 6
+    _assert_nested_close(captured.state_dict(), eager.state_dict(), "state")  # every weight, Adam moment, generator
+    assert found.keys() == expected.keys()
+    for key, value in expected.items():
+        torch.testing.assert_close(torch.as_tensor(found[key]).float().cpu(), torch.as_tensor(value).float().cpu(),
+                                   atol=1e-4, rtol=1e-4, msg=lambda m, k=key: f"metric {k}: {m}")
+
+
+def _assert_nested_close(a, b, where: str) -> None:
+    """Two state dicts alike: floats to tolerance, generator states and counts exactly, dicts and lists
+    entry by entry."""
+    if isinstance(b, dict):
+        assert a.keys() == b.keys(), where
+        for key in b:
+            _assert_nested_close(a[key], b[key], f"{where}.{key}")
+    elif isinstance(b, (list, tuple)):
+        assert len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b)):
+            _assert_nested_close(x, y, f"{where}[{i}]")
+    elif isinstance(b, torch.Tensor) and b.is_floating_point():
+        torch.testing.assert_close(a.float(), b.float(), atol=2e-5, rtol=1e-4, msg=lambda m: f"{where}: {m}")
+    elif isinstance(b, torch.Tensor):
+        assert torch.equal(a.cpu(), b.cpu()), where
+    else:
+        assert a == b, where
 
 
 @cuda

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import pytest
 import torch
+from test_pbrl_group import ACT, OBS, assert_states_close, batch, config
 
 from mop_core.agents.pbrl_group import stack_batches
 from mop_core.agents.pbrl_multitask import MultiTaskPBRL
 from mop_core.agents.pbrl_multitask_group import MultiTaskPBRLGroup
-from test_pbrl_group import ACT, OBS, assert_states_close, batch, config
 
 SEEDS = [3, 7]
 TASKS = ("stand", "walk", "run")

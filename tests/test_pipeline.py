@@ -224,7 +224,7 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
     for figure in ("returns.png", "student_curves.png"):
         assert (repo / "results" / "eval" / figure).read_bytes()[:4] == b"\x89PNG"
     stages = _run(["dvc", "stage", "list"], repo).stdout
-    assert "train_teachers@medium-gaussian" in stages and "train_multitask@medium-0" in stages
+    assert "train_teachers@medium-gaussian" in stages and "train_multitask@medium" in stages
     assert "distill@kl-medium" in stages and "eval" in stages
     shared = json.loads((repo / "results" / "shared_computation" / "metrics.json").read_text())
     for group in ("mse_medium", "q_medium", "kl_medium"):
@@ -359,7 +359,7 @@ def test_every_plot_renders_and_only_the_current_runs_are_drawn(repo):
     kinds = {path: {plot["type"] for plot in plots} for path, plots in shown["data"].items()}
     assert "results/students/curves/mse-expert/mse-expert-0.tsv" not in kinds
     for curve in ("collect/curves/stand.tsv", "teachers/curves/medium-gaussian/walk-medium-gaussian-0.tsv",
-                  "multitask/curves/medium-0.tsv", "students/curves/kl-medium/kl-medium-0.tsv", "eval/returns.tsv",
+                  "multitask/curves/medium/medium-0.tsv", "students/curves/kl-medium/kl-medium-0.tsv", "eval/returns.tsv",
                   "students/tau/mse-medium/mse-medium-0/per_state_tau_a_layer1.tsv",
                   "students/tau/q-medium/q-medium-0/per_state_tau_b_layer2.tsv"):
         assert kinds[f"results/{curve}"] == {"vega"}, curve
@@ -451,7 +451,7 @@ def test_each_parameter_section_invalidates_only_its_stages(repo):
     assert _invalidated_by(repo, "collect", "td3.learning_rate", 0.002) == {"collect"}
     assert _invalidated_by(repo, "relabel", "physics_check_transitions", 20) == {"relabel"}
     teachers = _invalidated_by(repo, "train_teachers", "pbrl.learning_rate", 0.002)
-    assert {"train_teachers@medium-deterministic", "train_multitask@medium-0", "train_relabelled_teachers@medium-ds",
+    assert {"train_teachers@medium-deterministic", "train_multitask@medium", "train_relabelled_teachers@medium-ds",
             "train_relabelled_teachers@medium-oqs"} <= teachers
     assert not {"collect", "relabel", "eval"} & teachers and not any(s.startswith("distill") for s in teachers)
     assert _invalidated_by(repo, "eval", "episodes", 2) == {"eval", "report"}  # the report names the budget
@@ -756,7 +756,7 @@ def test_the_study_through_mop_cluster_on_two_ray_nodes_equals_the_serial_run(re
         for entry in ("params", "collect", "relabel", "train_teachers@medium-deterministic",
                       "train_teachers@medium-gaussian", "compose", "student_inputs", target):  # via data/teachers
             assert done.get(entry) == "ran", out
-        for entry in ("distill@kl-medium", "train_multitask@medium-0", "eval", "report"):  # not read by the target
+        for entry in ("distill@kl-medium", "train_multitask@medium", "eval", "report"):  # not read by the target
             assert entry in every and entry not in done, out
         assert not _stages_run(_run(["dvc", "repro", target], study).stdout)
         assert json.loads(_run(["dvc", "status", "--json", target], study).stdout) == {}

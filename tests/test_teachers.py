@@ -5,13 +5,15 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-from mop_core.agents.pbrl import PBRLConfig, PessimisticCritic
+from mop_core.agents.pbrl import PBRLConfig
 from mop_core.agents.pbrl_group import PBRLGroup
+from mop_core.agents.pbrl_multitask_group import MultiTaskPBRLGroup
 from mop_core.data import TransitionTensors
 from mop_core.learning.schedule import TrainSchedule
 from mop_core.learning.training import RunPaths
@@ -209,31 +211,61 @@ def test_resume_file_of_another_config_or_a_broken_one_restarts_cleanly(sources,
 
 def test_multitask_critics_see_only_their_own_tasks_rewards(sources, tmp_path, monkeypatch):
     seen: dict[int, list[torch.Tensor]] = {}
-    original = PessimisticCritic.step
+    original = MultiTaskPBRLGroup._step
 
-    def record(self, batch, *args, **kwargs):
-        seen.setdefault(id(self), []).append(batch.rewards.clone())
+    def record(self, batch, *args, **kwargs):  # each task's critics, the rows of every run of the group
+        seen.setdefault(self.task, []).append(batch.rewards.clone())
         return original(self, batch, *args, **kwargs)
 
-    monkeypatch.setattr(PessimisticCritic, "step", record)
+    monkeypatch.setattr(MultiTaskPBRLGroup, "_step", record)
     schedule = TrainSchedule(steps=10, eval_every=10, eval_episodes=1, final_eval_episodes=1, checkpoint_every=10,
                              rollout_envs=1)
-    metrics = train_multitask(["stand", "walk"], [sources["stand"], sources["walk"]], _config(schedule=schedule),
-                              0, 0, _paths(tmp_path))
-    assert set(metrics) >= {"stand", "walk"} and metrics["gradient_steps_per_task"] == 10
-    # the learning curve is on the teachers' axis: steps per task, not updates over both tasks (Figure 5.3)
-    header, *rows = (tmp_path / "curve.tsv").read_text().splitlines()
-    assert [int(row.split("\t")[0]) for row in rows] == [10]
-    assert {"critic_loss_in_stand", "critic_loss_in_walk", "grad_cosine_stand-walk"} <= set(header.split("\t"))
-    cosine = float(rows[0].split("\t")[header.split("\t").index("grad_cosine")])
-    assert -1 <= cosine <= 1  # the shared actor's gradient conflict (thesis 5.1.2 as a number)
+    paths = [replace(_paths(tmp_path), checkpoint=tmp_path / f"{s}.pt", metrics=tmp_path / f"{s}.json",
+                     curve=tmp_path / f"{s}.tsv") for s in (0, 1)]
+    records = train_multitask(["stand", "walk"], [sources["stand"], sources["walk"]], _config(schedule=schedule),
+                              [0, 1], 0, paths, paths[0].resume, paths[0].timing)
+    assert [r["seed"] for r in records] == [0, 1] and all(set(r) >= {"stand", "walk"} for r in records)
+    assert records[0]["gradient_steps_per_task"] == 10 and records[0]["stand"] != records[1]["stand"]
+    timing = json.loads(paths[0].timing.read_text())
+    assert timing["runs"] == 2 and timing["steps"] == 10 and not paths[0].resume.exists()
+    for path, record in zip(paths, records):
+        assert json.loads(path.metrics.read_text()) == record
+        # the learning curve is on the teachers' axis: steps per task, not updates over both tasks (Figure 5.3)
+        header, *rows = path.curve.read_text().splitlines()
+        assert [int(row.split("\t")[0]) for row in rows] == [10]
+        assert {"critic_loss_in_stand", "critic_loss_in_walk", "grad_cosine_stand-walk"} <= set(header.split("\t"))
+        assert not any("@" in column for column in header.split("\t"))
+        cosine = float(rows[0].split("\t")[header.split("\t").index("grad_cosine")])
+        assert -1 <= cosine <= 1  # the shared actor's gradient conflict (thesis 5.1.2 as a number)
     stand_rewards = set(load_source(sources["stand"], 50)[0].rewards.tolist())
     walk_rewards = set(load_source(sources["walk"], 50)[0].rewards.tolist())
-    assert len(seen) == 2
-    per_critic = [torch.cat(batches).tolist() for batches in seen.values()]
-    assert [len(r) for r in per_critic] == [10 * 16, 10 * 16]
+    per_critic = [torch.cat(seen[task]).flatten().tolist() for task in (0, 1)]
+    assert [len(r) for r in per_critic] == [10 * 2 * 16, 10 * 2 * 16]
     assert set(per_critic[0]) <= stand_rewards and set(per_critic[1]) <= walk_rewards
     assert not set(per_critic[1]) <= stand_rewards  # walk rewards of the expert data are not stand's
+
+
+def test_a_multitask_seed_trained_in_a_group_equals_it_trained_alone(sources, tmp_path):
+    """Seed 1 of a group of seeds [0, 1] (and of waves of one run each) ends as seed 1 trained alone, to
+    float rounding: its own initialisation, minibatches, draws and episode seeds."""
+    schedule = TrainSchedule(steps=6, eval_every=3, eval_episodes=1, final_eval_episodes=1, checkpoint_every=3,
+                             rollout_envs=1)
+    def run(where: str, seeds: list[int], max_group: int | None = None) -> Path:
+        paths = [replace(_paths(tmp_path / where), checkpoint=tmp_path / where / f"{s}.pt") for s in seeds]
+        train_multitask(["stand", "walk"], [sources["stand"], sources["walk"]], _config(schedule=schedule), seeds, 0,
+                        paths, paths[0].resume, paths[0].timing, max_group=max_group)
+        return paths[-1].checkpoint
+    alone, grouped, waves = run("alone", [1]), run("group", [0, 1]), run("waves", [0, 1], max_group=1)
+    expected = torch.load(alone, weights_only=False)
+    for path in (grouped, waves):
+        found = torch.load(path, weights_only=False)
+        assert found["seed"] == 1 and found["metrics"].keys() == expected["metrics"].keys()
+        for key, value in expected["actor"].items():
+            torch.testing.assert_close(found["actor"][key], value, atol=1e-5, rtol=1e-4)
+        for critic, reference in zip(found["critics"], expected["critics"], strict=True):
+            for key, value in reference.items():
+                torch.testing.assert_close(critic[key], value, atol=1e-5, rtol=1e-4)
+    assert json.loads((tmp_path / "waves" / "timing.json").read_text())["waves"] == [1, 1]
 
 
 # ---- data sharing (thesis 6.4): teachers on the union of relabelled datasets -----------------------

@@ -17,7 +17,7 @@ kernel launches; R runs per step cost little more than one (benchmarks/bench_rat
 from __future__ import annotations
 
 import copy
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import torch
@@ -188,3 +188,15 @@ class MultiTaskPBRLGroup(PBRLGroup):
             match_loaded(optimizer, self.graphed is not None, self.device)
         if self.graphed is not None:  # new optimiser tensors: capture again
             self.graphed.reset()
+
+
+def probe_multitask_group(config: PBRLConfig, tasks: Sequence[str], obs_dim: int, act_dim: int,
+                          batch: Callable[[int], Batch], device: torch.device | str) -> Callable[[int], None]:
+    """``probe(R)``: a throwaway group of R baselines stepped on ``batch(R)`` until every (task, actor step
+    or not) variant has replayed; :func:`~mop_core.agents.pbrl_group.probe_group`'s twin for the
+    footprint (:func:`~mop_core.learning.group_memory.measure_footprint`)."""
+    def probe(runs: int) -> None:
+        group = MultiTaskPBRLGroup(config, tasks, obs_dim, act_dim, list(range(runs)), device)
+        for _ in range(3 * config.policy_delay * len(tasks)):
+            group.update(batch(runs), group.next_task)
+    return probe

@@ -200,8 +200,13 @@ class MultitaskRun:
         return multitask_group(self.level)
 
     @property
+    def entry(self) -> str:
+        """The train_multitask entry (and file folder) of every seed of its level, trained as one vectorised group."""
+        return self.level
+
+    @property
     def paths(self) -> RunPaths:
-        return run_paths(self.name, self.family)
+        return run_paths(self.name, self.family, self.entry)
 
     def reference_group(self) -> str:
         """The single-task teachers it is compared with (every seed's)."""
