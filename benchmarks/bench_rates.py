@@ -37,7 +37,7 @@ from bench_pbrl import pbrl_config, random_batch
 
 from mop_core.agents.pbrl import PBRL
 from mop_core.agents.pbrl_group import PBRLGroup, probe_group, stack_batches
-from mop_core.agents.pbrl_multitask import MultiTaskPBRL
+from mop_core.agents.pbrl_multitask_group import MultiTaskPBRLGroup
 from mop_core.agents.td3 import TD3, TD3Config
 from mop_core.config import from_mapping
 from mop_core.distill.checkpoint import student_policy
@@ -54,15 +54,17 @@ ROOT = Path(__file__).resolve().parents[1]
 GROUP_SIZES = (1, 8)
 
 
-def profile_group_sizes(params: dict) -> tuple[tuple[int, ...], tuple[int, ...]]:
+def profile_group_sizes(params: dict) -> tuple[tuple[int, ...], tuple[int, ...], tuple[int, ...]]:
     """The group sizes to measure for a profile: teachers at 1, 8, its entry's runs (tasks x seeds) and
     twice that (would a larger group, e.g. both actor types of a level, pay?); students at 1, 8, an
     entry's seeds and a loss's every pairing and seed (would one group per loss of the distill stage
-    pay?). The plan interpolates between measured sizes, so the profile's own are measured."""
+    pay?); multi-task baselines at 1 and an entry's seeds. The plan interpolates between measured sizes,
+    so the profile's own are measured."""
     entry = len(params["study"]["tasks"]) * len(params["train_teachers"]["seeds"])
     seeds = len(params["distill"]["seeds"])
     return (tuple(sorted({*GROUP_SIZES, entry, 2 * entry})),
-            tuple(sorted({*GROUP_SIZES, seeds, seeds * len(params["distill"]["pairings"])})))
+            tuple(sorted({*GROUP_SIZES, seeds, seeds * len(params["distill"]["pairings"])})),
+            tuple(sorted({1, len(params.get("train_multitask", {}).get("seeds") or [0])})))
 
 
 def pbrl_group_footprint(profile: Path, params: dict, device: torch.device) -> dict | None:
@@ -130,12 +132,18 @@ def pbrl_group_rates(profile: Path, device: torch.device, count: int, sizes=GROU
     return rates
 
 
-def multitask_rate(profile: Path, device: torch.device, count: int, cuda_graphs: bool | None = None) -> float:
-    """Updates/s of the naive multi-task baseline (one task's PBRL step per update, tasks alternating; 2
-    tasks, deterministic): on CUDA replayed CUDA graphs unless ``cuda_graphs`` is False."""
-    agent = MultiTaskPBRL(pbrl_config(profile), ("stand", "walk"), 24, 6, 0, device, cuda_graphs)
-    batch = random_batch(agent.config.batch_size).to(device)
-    return per_second(lambda: agent.update(batch, agent.next_task), count, device)
+def multitask_rates(profile: Path, params: dict, device: torch.device, count: int, sizes: tuple[int, ...] = (1,),
+                    cuda_graphs: bool | None = None) -> dict[str, float]:
+    """Group updates/s of the naive multi-task baseline per group size (its seeds as one
+    :class:`MultiTaskPBRLGroup`; one task's PBRL step per update, the profile's tasks alternating): on CUDA
+    replayed CUDA graphs unless ``cuda_graphs`` is False."""
+    config, tasks = pbrl_config(profile), tuple(params["study"]["tasks"])
+    rates = {}
+    for runs in sizes:
+        group = MultiTaskPBRLGroup(config, tasks, 24, 6, list(range(runs)), device, cuda_graphs)
+        batch = stack_batches([random_batch(config.batch_size, seed) for seed in range(runs)]).to(device)
+        rates[str(runs)] = per_second(lambda: group.update(batch, group.next_task), count, device)
+    return rates
 
 
 def student_rates(profile: Path, params: dict, device: torch.device, count: int, sizes=GROUP_SIZES,
@@ -208,13 +216,15 @@ def main() -> None:
     profile = Path(args.profile)
     params = yaml.safe_load(profile.read_text())
     count = 3 if args.quick else 50
-    teacher_sizes, student_sizes = profile_group_sizes(params)
+    teacher_sizes, student_sizes, multitask_sizes = profile_group_sizes(params)
+    multitask = multitask_rates(profile, params, device, count, multitask_sizes)
     result = {"profile": profile.name, "device": str(device), "threads": args.threads, "tf32": args.tf32,
               "machine": machine_facts(device),
               "td3_updates_per_second": td3_rate(params, device, count),
               "pbrl_updates_per_second": pbrl_rates(profile, device, count),
               "pbrl_group_updates_per_second": pbrl_group_rates(profile, device, count, teacher_sizes),
-              "pbrl_multitask_updates_per_second": multitask_rate(profile, device, count),
+              "pbrl_multitask_updates_per_second": multitask["1"],  # one baseline: a group of one
+              "pbrl_multitask_group_updates_per_second": multitask,
               "student_group_updates_per_second": student_rates(profile, params, device, count, student_sizes),
               "rollout_control_steps_per_second": rollout_rate(profile, device),
               "single_env_control_steps_per_second": rollout_rate(profile, device, envs=1),
@@ -224,7 +234,8 @@ def main() -> None:
         result["pbrl_group_memory"] = pbrl_group_footprint(profile, params, device)
         result["pbrl_group_eager_updates_per_second"] = pbrl_group_rates(profile, device, count, (8,), False)
         result["student_group_eager_updates_per_second"] = student_rates(profile, params, device, count, (8,), False)
-        result["pbrl_multitask_eager_updates_per_second"] = multitask_rate(profile, device, count, False)
+        result["pbrl_multitask_eager_updates_per_second"] = multitask_rates(profile, params, device, count, (1,),
+                                                                            False)["1"]
         result["td3_eager_updates_per_second"] = td3_rate(params, device, count, False)
     print(json.dumps(result, indent=1))
     for name in ("pbrl_group", "student_group"):
@@ -238,8 +249,10 @@ def main() -> None:
             print(f"{name}: CUDA graphs {captured:.0f} updates/s, eager {eager:.0f}: {captured / eager:.2f}x")
     ratio = result["parallel_rollout_control_steps_per_second"] / result["rollout_control_steps_per_second"]
     print(f"rollouts over {result['parallel_rollout_workers']} processes: {ratio:.2f}x one process's batched rate")
-    for name, unit in (("pbrl_group", "teacher"), ("student_group", "student")):  # does a larger group pay?
-        for kind, by_r in result[f"{name}_updates_per_second"].items():
+    groups = (("pbrl_group", "teacher"), ("student_group", "student"), ("pbrl_multitask_group", "multi-task"))
+    for name, unit in groups:  # does a larger group pay?
+        measured = result[f"{name}_updates_per_second"]
+        for kind, by_r in (measured if name != "pbrl_multitask_group" else {"deterministic": measured}).items():
             runs = ", ".join(f"R = {r}: {rate * int(r):.0f}" for r, rate in by_r.items())
             print(f"{name} {kind}: {unit} updates/s summed over the group's runs, {runs}")
     memory = result.get("pbrl_group_memory")

@@ -17,8 +17,9 @@ train_relabelled_teachers entry's vectorised group of R teachers, costs the time
 interpolated between the group sizes measured (R = 1, 8 and the profile's entry sizes; on CUDA:
 updates replayed as CUDA graphs; a rates file without group rates: R single teachers), as one group
 (a card without room for it trains it in waves, mop_core.learning.group_memory, which this does not
-model); the multi-task baseline updates at its own measured rate
-where the rates file has it (else a single teacher's); the KL loss costs what MSE does (the same network, no critic);
+model); a train_multitask entry, its level's multi-task baselines as one group, costs its group's
+measured time per update (R = 1 and the profile's seeds; a rates file without them: R single baselines
+at the baseline's own rate, else a single teacher's); the KL loss costs what MSE does (the same network, no critic);
 collect steps one walker per TD3 update at the single-environment rate; the common-structure students
 (distill_width, distill_ranking) cost what plain MSE students do (no rate is measured for other widths
 or for the ranking regulariser: a lower bound for width 512 and for the regulariser) and a single-task
@@ -66,6 +67,7 @@ class Rates:
     cores: int = 1  # the processes parallel_rollout ran in: what ``workers: auto`` means on the device machine
     pbrl_group: Mapping[str, Mapping[int, float]] | None = None  # actor type -> group size R -> group updates/s
     multitask: float | None = None  # updates/s of the naive multi-task baseline (one task's step each)
+    multitask_group: Mapping[int, float] | None = None  # group size R -> updates/s of R baselines as one group
 
     @classmethod
     def from_json(cls, record: Mapping[str, Any]) -> "Rates":
@@ -79,7 +81,9 @@ class Rates:
                    int(record.get("parallel_rollout_workers", 1)),
                    {actor: {int(r): float(v) for r, v in by_r.items()}
                     for actor, by_r in record.get("pbrl_group_updates_per_second", {}).items()} or None,
-                   record.get("pbrl_multitask_updates_per_second"))
+                   record.get("pbrl_multitask_updates_per_second"),
+                   {int(r): float(v) for r, v in record.get("pbrl_multitask_group_updates_per_second", {}).items()}
+                   or None)  # absent from rates files before the baseline's seeds trained as one group
 
     def rollout_over(self, workers: int | str) -> float:
         """Control steps/s of a stage's rollout jobs in ``workers`` processes: the all-cores rate where the
@@ -97,6 +101,14 @@ class Rates:
         if not self.pbrl_group or actor not in self.pbrl_group:
             return runs / self.pbrl[actor]
         return _group_seconds(self.pbrl_group[actor], runs)
+
+
+    def multitask_seconds_per_update(self, runs: int) -> float:
+        """Seconds per update of ``runs`` multi-task baselines as one group (a train_multitask entry):
+        interpolated between the measured group sizes; ``runs`` single updates where no group was measured."""
+        if not self.multitask_group:
+            return runs / (self.multitask or self.pbrl["deterministic"])
+        return _group_seconds(self.multitask_group, runs)
 
 
 def _group_seconds(by_r: Mapping[int, float], runs: int) -> float:
@@ -192,9 +204,13 @@ def stage_hours(params: Mapping[str, Any], rates: Rates) -> dict[str, tuple[int,
         t_sched(level)["steps"] * rates.teacher_seconds_per_update(actor, len(runs))
         + len(runs) * _evaluation_steps(t_sched(level), length) / rates.rollout
         for (level, actor), runs in entries.items()) / 3600)
-    out["train_multitask"] = _hours(catalogue.multitask, lambda run: (
-        len(run.tasks) * t_sched(run.level)["steps"] / (rates.multitask or rates.pbrl["deterministic"])
-        + _evaluation_steps(t_sched(run.level), length, len(run.tasks)) / rates.rollout))
+    baselines: dict[str, list] = {}  # a train_multitask entry: every seed of a level as one vectorised group
+    for run in catalogue.multitask:
+        baselines.setdefault(run.level, []).append(run)
+    out["train_multitask"] = (len(catalogue.multitask), sum(
+        len(tasks) * t_sched(level)["steps"] * rates.multitask_seconds_per_update(len(runs))
+        + len(runs) * _evaluation_steps(t_sched(level), length, len(tasks)) / rates.rollout
+        for level, runs in baselines.items()) / 3600)
     students = {stage: (sum(map(len, entries.values())), sum(_entry_seconds(runs, params, len(tasks), rates)
                                                               for runs in entries.values()) / 3600)
                 for stage, entries in catalogue.distill_stages().items()}

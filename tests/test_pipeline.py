@@ -359,7 +359,8 @@ def test_every_plot_renders_and_only_the_current_runs_are_drawn(repo):
     kinds = {path: {plot["type"] for plot in plots} for path, plots in shown["data"].items()}
     assert "results/students/curves/mse-expert/mse-expert-0.tsv" not in kinds
     for curve in ("collect/curves/stand.tsv", "teachers/curves/medium-gaussian/walk-medium-gaussian-0.tsv",
-                  "multitask/curves/medium/medium-0.tsv", "students/curves/kl-medium/kl-medium-0.tsv", "eval/returns.tsv",
+                  "multitask/curves/medium/medium-0.tsv", "students/curves/kl-medium/kl-medium-0.tsv",
+                  "eval/returns.tsv",
                   "students/tau/mse-medium/mse-medium-0/per_state_tau_a_layer1.tsv",
                   "students/tau/q-medium/q-medium-0/per_state_tau_b_layer2.tsv"):
         assert kinds[f"results/{curve}"] == {"vega"}, curve

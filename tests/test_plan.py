@@ -130,3 +130,12 @@ def test_a_teacher_entry_costs_its_vectorised_group_and_the_baseline_its_own_rat
     updates = plain["train_multitask"][1] - stage_hours(THESIS, Rates(**{**RATES.__dict__, "pbrl": {
         "deterministic": 1e12, "gaussian": 1e12}}))["train_multitask"][1]
     assert hours["train_multitask"][1] == pytest.approx(plain["train_multitask"][1] - updates / 3)
+    # a level's seeds as one group: 3 baselines at 45 group updates/s against one at 75/s cost 5/9 of singles
+    seeds = len(THESIS["train_multitask"]["seeds"])
+    assert seeds == 3
+    group = Rates(**{**grouped.__dict__, "multitask_group": {1: 75.0, 3: 45.0}})
+    assert group.multitask_seconds_per_update(3) == pytest.approx(1 / 45)
+    assert group.multitask_seconds_per_update(2) == pytest.approx((1 / 75 + 1 / 45) / 2)  # between sizes
+    assert grouped.multitask_seconds_per_update(3) == pytest.approx(3 / 75)  # no group rates: R singles
+    assert stage_hours(THESIS, group)["train_multitask"][1] == pytest.approx(
+        hours["train_multitask"][1] - updates * 2 / 3 * 4 / 9)
