@@ -180,7 +180,7 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
             name = f"{task}-medium-{actor}-0"
             assert (repo / "data" / "teachers" / f"medium-{actor}" / f"{name}.pt").is_file()
             assert (repo / "results" / "teachers" / "curves" / f"medium-{actor}" / f"{name}.tsv").is_file()
-    assert (repo / "data" / "multitask" / "medium-0.pt").is_file()
+    assert (repo / "data" / "multitask" / "medium" / "medium-0.pt").is_file()
     for loss in ("mse", "q", "kl"):
         assert (repo / "data" / "students" / f"{loss}-medium" / f"{loss}-medium-0.pt").is_file()
         assert (repo / "results" / "students" / "curves" / f"{loss}-medium" / f"{loss}-medium-0.tsv").is_file()
