@@ -6,7 +6,8 @@
   A teacher on relabelled data (thesis 6.4) names its ``sources``: the tasks whose datasets, with
   its own task's rewards, it learns from (D_{j->i}): every task for data sharing (DS), one other
   task for an offline Q-switch candidate (OQS); these train in the train_relabelled_teachers entries;
-- :class:`MultitaskRun`: the naive multi-task PBRL baseline per (level, seed);
+- :class:`MultitaskRun`: the naive multi-task PBRL baseline per (level, seed); every seed of a level trains
+  in one train_multitask entry, as one vectorised group (its ``entry``);
 - :class:`StudentRun`: a distilled student per (loss, pairing, seed), with the teachers it learns
   from (one per study task); every seed of a (loss, pairing) trains in one distill entry, as one
   vectorised group (its ``entry``). A common-structure variant (thesis 6.3: a width, a ranking

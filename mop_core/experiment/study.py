@@ -108,7 +108,8 @@ class TeacherGrid:
 
 @dataclass(frozen=True)
 class MultitaskGrid:
-    """The train_multitask section: one naive multi-task PBRL baseline per (level, seed)."""
+    """The train_multitask section: one naive multi-task PBRL baseline per (level, seed), a
+    train_multitask entry per level."""
 
     levels: tuple[str, ...]
     seeds: tuple[int, ...]
