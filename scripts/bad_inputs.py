@@ -42,7 +42,7 @@ STAGE = {
     "relabel": ["stages/relabel.py"],
     "teacher": ["stages/train_teachers.py", "--level", "medium", "--actor", "deterministic", "--tasks", "stand",
                 "--seeds", "0"],
-    "multitask": ["stages/train_multitask.py", "--level", "medium", "--seed", "0"],
+    "multitask": ["stages/train_multitask.py", "--level", "medium"],
     "student_inputs": ["stages/student_inputs.py"],
     "distill": ["stages/distill.py", "--entry", "mse-medium"],
     "compose": ["stages/compose.py"],
@@ -229,6 +229,11 @@ def cases() -> list[Case]:  # noqa: C901 (a flat list of cases)
         changed = [*distill, "--seeds", "0"] if args[0] == "--seeds" else list(distill)
         changed[changed.index(args[0]) + 1] = args[1]
         p.append(Case(f"distill {' '.join(args)}", "distill", lambda ws: None, culprit, tuple(changed)))
+    multitask = STAGE["multitask"][1:]
+    for args, culprit in [(("--level", "expert"), "--level"), (("--seeds", "5"), "--seeds")]:
+        changed = [*multitask, "--seeds", "0"] if args[0] == "--seeds" else list(multitask)
+        changed[changed.index(args[0]) + 1] = args[1]
+        p.append(Case(f"train_multitask {' '.join(args)}", "multitask", lambda ws: None, culprit, tuple(changed)))
     # files
     ds, rl = "data/datasets/stand-medium.hdf5", "data/relabelled/stand-medium.hdf5"
     teacher_pt = "data/teachers/medium-deterministic/stand-medium-deterministic-0.pt"

@@ -93,7 +93,9 @@ def test_run_names_groups_and_files(catalogue):
     assert teacher.relabels == (Path("data/relabelled/stand-medium.hdf5"),)
     multitask = catalogue.multitask[0]
     assert multitask.name == "medium-0" and multitask.group == "multitask_medium"
-    assert multitask.paths.checkpoint == Path("data/multitask/medium/medium-0.pt")
+    assert multitask.paths.checkpoint == Path("data/multitask/medium/medium-0.pt") and multitask.entry == "medium"
+    assert multitask.paths.resume == Path("data/resume/multitask-medium.pt")  # the entry's group's
+    assert multitask.paths.timing == Path("results/timings/multitask/medium.json")
     assert multitask.reference_group() == "teacher_medium_deterministic"
     student = catalogue.students[2]
     assert student.group == "student_kl_medium" and representation_group("kl", "medium") == "kl_medium"
@@ -462,3 +464,17 @@ def test_a_registered_family_gets_its_students_from_its_grid_without_a_catalogue
     pairing = params["common_structure"]["pairing"]
     assert set(catalogue.distill_stages()["distill_halved"]) == {f"mse-half{w}-{pairing}" for w in widths}
     assert set(build_catalogue(params).students) < set(catalogue.students)  # unregistered: gone again
+
+
+def test_a_multitask_entry_holds_every_seed_of_its_level_and_refuses_others_by_flag(tiny_params):
+    from mop_core.config import ConfigError
+    from mop_core.teachers import multitask_runs
+
+    params = _with(tiny_params, train_multitask={"seeds": [0, 2, 1]})
+    assert [(r.level, r.seed) for r in multitask_runs(params, "medium")] == [("medium", 0), ("medium", 2),
+                                                                             ("medium", 1)]
+    assert [r.seed for r in multitask_runs(params, "medium", [1])] == [1]
+    with pytest.raises(ConfigError, match="--seeds"):
+        multitask_runs(params, "medium", [5])
+    with pytest.raises(ConfigError, match="--level"):
+        multitask_runs(params, "expert")
