@@ -380,12 +380,12 @@ def train_multitask(tasks: Sequence[str], sources: Sequence[DataSource], config:
 
 
 def _train_multitask_wave(tasks: tuple[str, ...], loaded: Sequence[tuple[TransitionTensors, dict]],
-                          config: TeacherConfig, run_seeds_: Sequence[int], study_seed: int, paths: Sequence[RunPaths],
+                          config: TeacherConfig, wave_seeds: Sequence[int], study_seed: int, paths: Sequence[RunPaths],
                           resume: Path, device: torch.device, progress: bool, name: str, keep: bool
                           ) -> tuple[list[dict], float, int]:
     """One group of :func:`train_multitask` (``keep``: as :func:`_train_wave`)."""
     level = "+".join(summary["level"] for _, summary in loaded)
-    seeds = [run_seeds(study_seed, ["multitask", *tasks, level], seed) for seed in run_seeds_]
+    seeds = [run_seeds(study_seed, ["multitask", *tasks, level], seed) for seed in wave_seeds]
     agent = MultiTaskPBRLGroup(config.pbrl, tasks, OBS_DIM, ACT_DIM, [s["agent"] for s in seeds], device)
     samplers = [torch.Generator(device).manual_seed(s["sampler"]) for s in seeds]
     sched, runs = config.schedule, len(seeds)
@@ -412,13 +412,13 @@ def _train_multitask_wave(tasks: tuple[str, ...], loaded: Sequence[tuple[Transit
         group_row = {run_key(k, r): v for r, row in enumerate(rows) for k, v in row.items()}
         return group_row | {"return_mean": float(np.mean([row["return_mean"] for row in rows]))}
 
-    fingerprint = run_fingerprint({"tasks": tasks, "config": to_dict(config), "seeds": list(run_seeds_),
+    fingerprint = run_fingerprint({"tasks": tasks, "config": to_dict(config), "seeds": list(wave_seeds),
                                    "study_seed": study_seed, "data": [s["content_sha256"] for _, s in loaded]})
     group_curve, seconds, resumed_from = train_loop(learner, learner.update, evaluate, sched, seeds[0], None, resume,
                                                     fingerprint, f"multitask {name}", progress)
     curves = list(zip(*(split_runs(row, runs) for row in group_curve))) or [[] for _ in seeds]
     records = []
-    for r, seed in enumerate(run_seeds_):
+    for r, seed in enumerate(wave_seeds):
         metrics: dict = {"tasks": list(tasks), "level": level, "seed": seed, "gradient_steps_per_task": sched.steps}
         for i, (task, (_, summary)) in enumerate(zip(tasks, loaded)):
             final = episodes(r, i, "final_eval", sched.final_eval_episodes)
