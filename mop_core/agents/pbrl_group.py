@@ -301,12 +301,21 @@ class PBRLGroup:
         """Run ``run``'s deterministic action (a Gaussian actor's mean) for states ``[K, obs]``."""
         return numpy_policy(self.member_actor(run), self.device)(observations)
 
+    def _critic_state(self) -> dict:
+        """The critics' part of :meth:`state_dict` (a task-conditioned group holds one set per task)."""
+        return {"critic": self.critic.state_dict(), "critic_target": self.critic_target.state_dict(),
+                "critic_optimizer": self.critic_optimizer.state_dict()}
+
+    def _load_critic_state(self, state: dict) -> None:
+        self.critic.load_state_dict(state["critic"])
+        self.critic_target.load_state_dict(state["critic_target"])
+        self.critic_optimizer.load_state_dict(state["critic_optimizer"])
+
     def state_dict(self) -> dict:
         """Everything a resumed group needs to continue bit for bit (a copy)."""
         return copy.deepcopy({
             "actor": self.actor.state_dict(), "actor_target": self.actor_target.state_dict(),
-            "actor_optimizer": self.actor_optimizer.state_dict(), "critic": self.critic.state_dict(),
-            "critic_target": self.critic_target.state_dict(), "critic_optimizer": self.critic_optimizer.state_dict(),
+            "actor_optimizer": self.actor_optimizer.state_dict(), **self._critic_state(),
             "log_alpha": self.log_alpha.detach(),
             "alpha_optimizer": None if self.alpha_optimizer is None else self.alpha_optimizer.state_dict(),
             "generators": [g.get_state() for g in self.generators], "updates": self.updates})
@@ -315,9 +324,7 @@ class PBRLGroup:
         self.actor.load_state_dict(state["actor"])
         self.actor_target.load_state_dict(state["actor_target"])
         self.actor_optimizer.load_state_dict(state["actor_optimizer"])
-        self.critic.load_state_dict(state["critic"])
-        self.critic_target.load_state_dict(state["critic_target"])
-        self.critic_optimizer.load_state_dict(state["critic_optimizer"])
+        self._load_critic_state(state)
         with torch.no_grad():
             self.log_alpha.copy_(state["log_alpha"])
         if self.alpha_optimizer is not None:

@@ -37,6 +37,14 @@ from mop_core.learning.graphs import (
 from mop_core.learning.nn import adam, numpy_policy, soft_update, with_task_id
 
 
+def task_turn(expected: int, task: int, critic_updates: int, config: PBRLConfig) -> tuple[float, bool]:
+    """Task ``task``'s next step, its ``critic_updates``-th: its beta_ood and whether it also trains the
+    shared actor (every ``policy_delay``-th step of that task). A task out of turn (``expected``) is refused."""
+    if task != expected:
+        raise ValueError(f"task: expected {expected} (tasks alternate), got {task}")
+    return beta_ood(critic_updates, config), (critic_updates + 1) % config.policy_delay == 0
+
+
 class MultiTaskPBRL:
     """A shared actor over ``tasks`` and one :class:`PessimisticCritic` per task."""
 
@@ -99,11 +107,8 @@ class MultiTaskPBRL:
 
     def update(self, batch: Batch, task: int) -> dict[str, torch.Tensor | float]:
         """One PBRL step for ``task`` on ``batch`` (a batch of that task's dataset and rewards)."""
-        if task != self.next_task:
-            raise ValueError(f"task: expected {self.next_task} (tasks alternate), got {task}")
+        beta, actor_now = task_turn(self.next_task, task, self.critic_updates[task], self.config)
         batch = batch.to(self.device)
-        beta = beta_ood(self.critic_updates[task], self.config)
-        actor_now = (self.critic_updates[task] + 1) % self.config.policy_delay == 0
         if self.graphed is None:
             metrics = self._step(batch, task, beta, actor_now)
         else:

@@ -23,12 +23,12 @@ import numpy as np
 import torch
 from torch import nn
 
-from mop_core.agents.pbrl import PBRLConfig, beta_ood, make_actor
+from mop_core.agents.pbrl import PBRLConfig, make_actor
 from mop_core.agents.pbrl_group import ActorGroup, PBRLGroup
-from mop_core.agents.pbrl_multitask import MultiTaskPBRL
+from mop_core.agents.pbrl_multitask import MultiTaskPBRL, task_turn
 from mop_core.data.buffer import Batch
 from mop_core.learning.conflict import flat_gradient, pairwise_cosines
-from mop_core.learning.graphs import GraphedStep, graphs_enabled, learner_adam, match_loaded
+from mop_core.learning.graphs import GraphedStep, graphs_enabled, learner_adam
 from mop_core.learning.nn import EnsembleCritic, copy_member, numpy_policy, with_task_id
 from mop_core.learning.step_metrics import run_key
 
@@ -103,11 +103,8 @@ class MultiTaskPBRLGroup(PBRLGroup):
         """One PBRL step of task ``task`` for every run on ``batch`` (run r's rows: a batch of task
         ``task``'s data); metrics as 0-d tensors named ``key@run``. On CUDA a replayed CUDA graph per
         (task, actor step or not)."""
-        if task != self.next_task:
-            raise ValueError(f"task: expected {self.next_task} (tasks alternate), got {task}")
+        beta, actor_now = task_turn(self.next_task, task, self.critic_updates[task], self.config)
         batch = batch.to(self.device)
-        beta = beta_ood(self.critic_updates[task], self.config)
-        actor_now = (self.critic_updates[task] + 1) % self.config.policy_delay == 0
         if self.graphed is None:
             self._select(task)
             per_run = self._step(batch, beta, actor_now)
@@ -156,39 +153,18 @@ class MultiTaskPBRLGroup(PBRLGroup):
         """Run ``run``'s deterministic action on task ``task`` for states ``[K, obs]``."""
         return numpy_policy(self.member_actor(run), self.device, task, len(self.tasks))(observations)
 
-    def state_dict(self) -> dict:
-        """Everything a resumed group needs to continue bit for bit (a copy)."""
-        return copy.deepcopy({
-            "actor": self.actor.state_dict(), "actor_target": self.actor_target.state_dict(),
-            "actor_optimizer": self.actor_optimizer.state_dict(),
-            "critics": [c.state_dict() for c in self.critics], "critic_targets": [c.state_dict()
-                                                                                   for c in self.critic_targets],
-            "critic_optimizers": [o.state_dict() for o in self.critic_optimizers],
-            "critic_updates": list(self.critic_updates), "log_alpha": self.log_alpha.detach(),
-            "alpha_optimizer": None if self.alpha_optimizer is None else self.alpha_optimizer.state_dict(),
-            "generators": [g.get_state() for g in self.generators], "updates": self.updates})
+    def _critic_state(self) -> dict:
+        return {"critics": [c.state_dict() for c in self.critics],
+                "critic_targets": [c.state_dict() for c in self.critic_targets],
+                "critic_optimizers": [o.state_dict() for o in self.critic_optimizers],
+                "critic_updates": list(self.critic_updates)}
 
-    def load_state_dict(self, state: dict) -> None:
-        self.actor.load_state_dict(state["actor"])
-        self.actor_target.load_state_dict(state["actor_target"])
-        self.actor_optimizer.load_state_dict(state["actor_optimizer"])
+    def _load_critic_state(self, state: dict) -> None:
         for modules, saved in ((self.critics, state["critics"]), (self.critic_targets, state["critic_targets"]),
                                (self.critic_optimizers, state["critic_optimizers"])):
             for module, module_state in zip(modules, saved, strict=True):
                 module.load_state_dict(module_state)
         self.critic_updates = list(state["critic_updates"])
-        with torch.no_grad():
-            self.log_alpha.copy_(state["log_alpha"])
-        if self.alpha_optimizer is not None:
-            self.alpha_optimizer.load_state_dict(state["alpha_optimizer"])
-        for generator, saved in zip(self.generators, state["generators"], strict=True):
-            generator.set_state(saved)
-        self.updates = state["updates"]
-        for optimizer in self.optimizers():  # as built here, whoever wrote the state
-            match_loaded(optimizer, self.graphed is not None, self.device)
-        if self.graphed is not None:  # new optimiser tensors: capture again
-            self.graphed.reset()
-
 
 def probe_multitask_group(config: PBRLConfig, tasks: Sequence[str], obs_dim: int, act_dim: int,
                           batch: Callable[[int], Batch], device: torch.device | str) -> Callable[[int], None]:
