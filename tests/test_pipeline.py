@@ -265,10 +265,12 @@ EXP_PUSH = "dvc exp push --run-cache origin"
 RESTORE_ON_B = "git pull && dvc exp run --pull -S distill.learning_rate=3e-4"
 RESTORE_STUDY_ON_B = "dvc repro --pull"
 SHARED_CACHE = "dvc cache dir --local /mnt/shared/mop-cache"
-# the queued experiment's smaller grid (no state-shift or single-task students: the suite's time)
+# the queued experiment's smaller grid (the distill entries' students only, no other family's: the suite's time)
 SMALLER_GRID = ("-S", "state_shift.datasets=[]", "-S", "state_shift.widths=[]", "-S", "state_shift.data_percents=[]",
                 "-S", "state_shift.corrections=[]", "-S", "state_shift.correction_datasets=[]",
-                "-S", "common_structure.single_task=[]")
+                "-S", "common_structure.single_task=[]", "-S", "common_structure.widths=[]",
+                "-S", "common_structure.ranking_losses=[]", "-S", "data_sharing.students=[]",
+                "-S", "data_sharing.substitute_students=[]")
 
 
 def _command(line: str, *extra: str) -> list[str]:
