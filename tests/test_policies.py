@@ -16,10 +16,9 @@ from mop_core.distill.config import DistillConfig
 from mop_core.distill.student import Student, StudentConfig
 from mop_core.learning.nn import DeterministicActor, EnsembleCritic, with_task_id
 from mop_core.learning.resume import RESUME_KIND
-from mop_core.multitask import MULTITASK_KIND
 from mop_core.policies import POLICY_KINDS, TASK_CONDITIONED, checkpoint_kind, load_policy
 from mop_core.storage.artifacts import save_checkpoint, state_sha256
-from mop_core.teachers import TEACHER_KIND
+from mop_core.teachers import MULTITASK_KIND, TEACHER_KIND
 
 TASKS = ["stand", "walk"]
 HIDDEN = (8, 8)

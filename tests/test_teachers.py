@@ -17,7 +17,6 @@ from mop_core.agents.pbrl_multitask_group import MultiTaskPBRLGroup
 from mop_core.data import TransitionTensors
 from mop_core.learning.schedule import TrainSchedule
 from mop_core.learning.training import RunPaths
-from mop_core.multitask import train_multitask
 from mop_core.relabel import RelabelConfig, relabel_dataset
 from mop_core.teachers import (
     DataSource,
@@ -27,6 +26,7 @@ from mop_core.teachers import (
     load_sources,
     load_teacher,
     teacher_probe,
+    train_multitask,
     train_teacher,
     train_teacher_group,
 )
