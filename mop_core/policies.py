@@ -19,7 +19,7 @@ from mop_core.config import InputFileError
 from mop_core.distill.checkpoint import STUDENT_KIND, student_from_checkpoint
 from mop_core.learning.nn import NumpyPolicy, numpy_policy
 from mop_core.storage.artifacts import read_torch_file
-from mop_core.teachers import MULTITASK_KIND, TEACHER_KIND, multitask_from_checkpoint, teacher_from_checkpoint
+from mop_core.teacher_policies import MULTITASK_KIND, TEACHER_KIND, multitask_from_checkpoint, teacher_from_checkpoint
 
 Policy = NumpyPolicy
 TASK_CONDITIONED = (MULTITASK_KIND, STUDENT_KIND)  # kinds that act under a task id

@@ -19,9 +19,10 @@ from common import check_level_and_seed, load_params, require_inputs, run_stage
 from mop_core.config import ConfigError, keys_under
 from mop_core.experiment.study import study_config, teacher_grid
 from mop_core.learning.runtime import configure_compute, progress_enabled, resolve_device
+from mop_core.multitask import multitask_runs, train_multitask
 from mop_core.storage.files import read_json
 from mop_core.storage.layout import dataset_file, relabel_file
-from mop_core.teachers import DataSource, multitask_runs, teacher_config, train_multitask
+from mop_core.teachers import DataSource, teacher_config
 
 
 def main() -> None:

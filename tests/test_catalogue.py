@@ -468,7 +468,7 @@ def test_a_registered_family_gets_its_students_from_its_grid_without_a_catalogue
 
 def test_a_multitask_entry_holds_every_seed_of_its_level_and_refuses_others_by_flag(tiny_params):
     from mop_core.config import ConfigError
-    from mop_core.teachers import multitask_runs
+    from mop_core.multitask import multitask_runs
 
     params = _with(tiny_params, train_multitask={"seeds": [0, 2, 1]})
     assert [(r.level, r.seed) for r in multitask_runs(params, "medium")] == [("medium", 0), ("medium", 2),

@@ -23,7 +23,7 @@ from mop_core.distill.student import Student, StudentConfig, StudentGroup
 from mop_core.learning.nn import DeterministicActor, EnsembleCritic, GaussianActor
 from mop_core.learning.schedule import TrainSchedule
 from mop_core.learning.training import RunPaths
-from mop_core.teachers import Teacher, load_teacher
+from mop_core.teacher_policies import Teacher, load_teacher
 from mop_core.walker.envs import WalkerEnv
 
 TINY = StudentConfig(hidden_sizes=(16, 16))

@@ -20,7 +20,7 @@ from mop_core.statistics import (
     ratio_to_teacher,
     summarise_group,
 )
-from mop_core.teachers import load_teacher
+from mop_core.teacher_policies import load_teacher
 from mop_core.walker.rollout import episode_returns
 
 

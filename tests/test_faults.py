@@ -30,7 +30,7 @@ from mop_core.storage.artifacts import load_checkpoint, read_curve, save_checkpo
 # ---- damaged files name themselves ----------------------------------------------------------------
 @pytest.mark.parametrize("damage", ["empty", "truncated", "garbage", "json"])
 def test_a_damaged_checkpoint_names_its_file(tiny_teachers, tmp_path, damage):
-    from mop_core.teachers import load_teacher
+    from mop_core.teacher_policies import load_teacher
 
     checkpoints, _ = tiny_teachers
     good = checkpoints[("stand", "deterministic")].read_bytes()

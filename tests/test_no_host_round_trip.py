@@ -24,7 +24,7 @@ from mop_core.distill.distiller import Distiller
 from mop_core.distill.states import TaskStates
 from mop_core.distill.student import StudentConfig
 from mop_core.learning.nn import EnsembleCritic
-from mop_core.teachers import _GroupLearner
+from mop_core.teachers import GroupLearner
 
 STEPS = 3
 CAPTURED = 6  # calls before the checked ones: on CUDA a PBRL group's both variants warm up and are captured
@@ -46,7 +46,7 @@ def _learners(device: torch.device) -> dict:
         config = PBRLConfig(actor=actor, hidden_sizes=(32, 32), batch_size=64, ood_actions=2, layer_norm=True,
                             target_entropy=-6.0)
         group = PBRLGroup(config, 24, 6, [0, 1], device, cuda_graphs=graphs)
-        learner = _GroupLearner(group, [_dataset(500, 0, device), _dataset(500, 1, device)],
+        learner = GroupLearner(group, [_dataset(500, 0, device), _dataset(500, 1, device)],
                                 [torch.Generator(device).manual_seed(s) for s in (0, 1)], 64, CAPTURED + STEPS)
         learners[f"pbrl-{actor}{name}"] = learner.update
         for _ in range(CAPTURED - 1):  # the checked steps replay the graphs (eager on the CPU)

@@ -18,7 +18,7 @@ from mop_core.learning.nn import DeterministicActor, EnsembleCritic, with_task_i
 from mop_core.learning.resume import RESUME_KIND
 from mop_core.policies import POLICY_KINDS, TASK_CONDITIONED, checkpoint_kind, load_policy
 from mop_core.storage.artifacts import save_checkpoint, state_sha256
-from mop_core.teachers import MULTITASK_KIND, TEACHER_KIND
+from mop_core.teacher_policies import MULTITASK_KIND, TEACHER_KIND
 
 TASKS = ["stand", "walk"]
 HIDDEN = (8, 8)
@@ -166,7 +166,7 @@ def test_the_checkpoints_the_stages_write_load(tiny_collected, tiny_teachers):
     """The files collect_task and train_teacher write, not hand-made ones: the loader keeps up with the writers."""
     from mop_core.agents.td3 import actor_from_checkpoint
     from mop_core.storage.artifacts import load_checkpoint
-    from mop_core.teachers import load_teacher
+    from mop_core.teacher_policies import load_teacher
 
     root, _ = tiny_collected
     for level in ("medium", "expert"):

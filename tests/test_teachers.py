@@ -17,16 +17,16 @@ from mop_core.agents.pbrl_multitask_group import MultiTaskPBRLGroup
 from mop_core.data import TransitionTensors
 from mop_core.learning.schedule import TrainSchedule
 from mop_core.learning.training import RunPaths
+from mop_core.multitask import train_multitask
 from mop_core.relabel import RelabelConfig, relabel_dataset
+from mop_core.teacher_policies import load_teacher
 from mop_core.teachers import (
     DataSource,
     TeacherConfig,
     TeacherJob,
     load_source,
     load_sources,
-    load_teacher,
     teacher_probe,
-    train_multitask,
     train_teacher,
     train_teacher_group,
 )

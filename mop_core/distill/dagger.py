@@ -12,7 +12,7 @@ from mop_core.distill.evaluation import Rollouts
 from mop_core.distill.states import (
     teacher_outputs,
 )
-from mop_core.teachers import Teacher
+from mop_core.teacher_policies import Teacher
 
 
 def with_dagger(distiller: Distiller, teachers: Sequence[Teacher], steps: int, seed: int,

@@ -21,7 +21,7 @@ from mop_core.distill.states import (
 from mop_core.distill.student import Student
 from mop_core.learning.training import returns_summary
 from mop_core.representations.measures import per_state_tau_by_layer
-from mop_core.teachers import Teacher
+from mop_core.teacher_policies import Teacher
 from mop_core.walker.rollout import policies_returns_and_states
 
 

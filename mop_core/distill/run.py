@@ -41,7 +41,7 @@ from mop_core.learning.step_metrics import run_key, split_runs
 from mop_core.learning.training import RunPaths, finish_run, train_loop
 from mop_core.storage.artifacts import read_curve, state_sha256, write_curve
 from mop_core.storage.timings import per_second, write_timing
-from mop_core.teachers import Teacher, load_teacher
+from mop_core.teacher_policies import Teacher, load_teacher
 from mop_core.walker.envs import ACT_DIM, OBS_DIM
 from mop_core.walker.tasks import check_task_list
 

@@ -233,7 +233,7 @@ def compose_teacher_data(teacher_path: Path, task: str, level: str, config: Comp
     """The compose step of one task (a :func:`mop_core.learning.runtime.parallel_map` job): load the frozen
     deterministic teacher of ``teacher_path`` and write its composed datasets and reference episodes
     to ``path_of(name)``. Returns :func:`compose_task`'s summary with the seconds it took."""
-    from mop_core.teachers import load_teacher  # the teachers' training code only where it is needed
+    from mop_core.teacher_policies import load_teacher  # torch only in the compose workers
 
     started = time.perf_counter()
     teacher = load_teacher(teacher_path)
