@@ -8,6 +8,7 @@ files, each learner's module types its own section).
 
 from __future__ import annotations
 
+import argparse
 import fcntl
 import os
 import sys
@@ -79,10 +80,14 @@ def hold_run_lock(argv: list[str]) -> None:
 _HELD_LOCKS: list = []
 
 
-def run_stage(main) -> None:
+def run_stage(main, doc: str | None = None) -> None:
     """Run a stage's ``main`` holding its run lock and dying with its parent (``dvc repro``); a
     configuration error, a bad input file, a full disk, a diverged run or a busy lock prints one clear
-    line (naming the key, the file or the run) and exits with status 2."""
+    line (naming the key, the file or the run) and exits with status 2. A stage that takes no arguments
+    passes its docstring ``doc``: ``--help`` prints it and any argument is refused before any compute
+    (a stage that parses its own flags passes none)."""
+    if doc is not None:
+        argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter).parse_args()
     try:
         die_with_parent()
         hold_run_lock(sys.argv)

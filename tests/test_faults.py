@@ -333,3 +333,29 @@ def test_a_stage_reports_a_damaged_dataset_in_one_line(tmp_path):
     assert result.stderr.startswith("error: data/datasets/stand-medium.hdf5: cannot be read as HDF5 (truncated or "
                                     "corrupt?)") and result.stderr.count("\n") == 1
     assert not (tmp_path / "data" / "relabelled").exists()
+
+
+# ---- a stage's command line --------------------------------------------------------------------------
+def test_every_stage_answers_help_and_refuses_an_unknown_argument_before_any_compute(tmp_path):
+    """`python stages/collect.py --help` once started the whole collect stage (it took no flags, so it
+    read none): every stage script parses its command line, its own flags or none (``run_stage(main,
+    __doc__)``), before it reads a parameter. Checked on every script's code, run for collect (in an empty
+    directory: a stage that computed would fail there, not print its usage)."""
+    import ast
+
+    for script in sorted((ROOT / "stages").glob("*.py")):
+        if script.name == "common.py":
+            continue
+        tree = ast.parse(script.read_text())
+        parses = any(isinstance(n, ast.Attribute) and n.attr == "parse_args" for n in ast.walk(tree))
+        passes_doc = any(isinstance(n, ast.Call) and getattr(n.func, "id", "") == "run_stage" and len(n.args) == 2
+                         for n in ast.walk(tree))
+        assert parses != passes_doc, f"{script.name}: parse its flags or pass its docstring to run_stage, one of them"
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "stages")}
+    shown = subprocess.run([sys.executable, str(ROOT / "stages/collect.py"), "--help"], cwd=tmp_path, env=env,
+                           capture_output=True, text=True)
+    assert shown.returncode == 0 and "collect stage: per task" in shown.stdout
+    refused = subprocess.run([sys.executable, str(ROOT / "stages/collect.py"), "--workers", "4"], cwd=tmp_path,
+                             env=env, capture_output=True, text=True)
+    assert refused.returncode == 2 and "unrecognized arguments: --workers 4" in refused.stderr
+    assert not any(tmp_path.iterdir())
