@@ -68,6 +68,7 @@ class Rates:
     pbrl_group: Mapping[str, Mapping[int, float]] | None = None  # actor type -> group size R -> group updates/s
     multitask: float | None = None  # updates/s of the naive multi-task baseline (one task's step each)
     multitask_group: Mapping[int, float] | None = None  # group size R -> updates/s of R baselines as one group
+    tf32: bool = False  # CUDA matmuls ran in TF32 (bench_rates.py --tf32): not the fp32 the study runs
 
     @classmethod
     def from_json(cls, record: Mapping[str, Any]) -> "Rates":
@@ -83,7 +84,8 @@ class Rates:
                     for actor, by_r in record.get("pbrl_group_updates_per_second", {}).items()} or None,
                    record.get("pbrl_multitask_updates_per_second"),
                    {int(r): float(v) for r, v in record.get("pbrl_multitask_group_updates_per_second", {}).items()}
-                   or None)  # absent from rates files before the baseline's seeds trained as one group
+                   or None,  # absent from rates files before the baseline's seeds trained as one group
+                   bool(record.get("tf32", False)))
 
     def rollout_over(self, workers: int | str) -> float:
         """Control steps/s of a stage's rollout jobs in ``workers`` processes: the all-cores rate where the
@@ -101,7 +103,6 @@ class Rates:
         if not self.pbrl_group or actor not in self.pbrl_group:
             return runs / self.pbrl[actor]
         return _group_seconds(self.pbrl_group[actor], runs)
-
 
     def multitask_seconds_per_update(self, runs: int) -> float:
         """Seconds per update of ``runs`` multi-task baselines as one group (a train_multitask entry):
@@ -314,7 +315,8 @@ def one_level_grid(params: Mapping[str, Any]) -> dict:
 
 def plan_table(params: Mapping[str, Any], rates: Rates) -> str:
     rows = stage_hours(params, rates)
-    lines = [f"Estimated cost on {rates.device} (one device, stages one after another):", "",
+    precision = "; rates measured with CUDA matmuls in TF32, not the fp32 the study runs" if rates.tf32 else ""
+    lines = [f"Estimated cost on {rates.device} (one device, stages one after another{precision}):", "",
              "| stage | runs | seconds | hours |", "|---|---|---|---|"]
     lines += [f"| {stage} | {runs} | {hours * 3600:.0f} | {hours:.2f} |" for stage, (runs, hours) in rows.items()]
     total = sum(h for _, h in rows.values())

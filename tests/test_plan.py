@@ -10,7 +10,7 @@ from conftest import ROOT
 
 from mop_core.experiment.catalogue import build_catalogue
 from mop_core.experiment.study import shift_grid, study_config
-from mop_core.plan import STUDENT_STAGES, Rates, one_level_grid, scaled_profile, stage_hours
+from mop_core.plan import STUDENT_STAGES, Rates, one_level_grid, plan_table, scaled_profile, stage_hours
 from mop_core.shift.compose import compose_config
 from mop_core.study_params import check_params
 
@@ -109,6 +109,21 @@ def test_rollouts_over_every_core_cost_eval_and_shared_computation_their_all_cor
     assert Rates.from_json(record).parallel_rollout is None  # an older rates file
     assert Rates.from_json(record | {"parallel_rollout_control_steps_per_second": 80,
                                      "parallel_rollout_workers": 16}).rollout_over("auto") == 80
+
+
+def test_a_plan_from_tf32_rates_says_so_in_its_heading():
+    """bench_rates.py --tf32 measures what TF32 would buy; the study runs fp32, so a plan from such rates
+    must not read as the study's cost."""
+    record = {"machine": {"gpu": "H200"}, "device": "cuda", "td3_updates_per_second": 100,
+              "pbrl_updates_per_second": {"deterministic": 50.0, "gaussian": 40.0},
+              "student_group_updates_per_second": {"mse": {"1": 200.0, "8": 100.0}, "q": {"1": 100.0, "8": 40.0}},
+              "rollout_control_steps_per_second": 1000, "single_env_control_steps_per_second": 100}
+    fp32, tf32 = Rates.from_json(record | {"tf32": False}), Rates.from_json(record | {"tf32": True})
+    assert not Rates.from_json(record).tf32  # rates files before the flag: fp32
+    heading = plan_table(THESIS, tf32).splitlines()[0]
+    assert "TF32" in heading and "not the fp32 the study runs" in heading
+    assert "TF32" not in plan_table(THESIS, fp32).splitlines()[0]
+    assert plan_table(THESIS, tf32).splitlines()[1:] == plan_table(THESIS, fp32).splitlines()[1:]
 
 
 def test_a_teacher_entry_costs_its_vectorised_group_and_the_baseline_its_own_rate():
