@@ -40,6 +40,7 @@ from mop_core.learning.runtime import (
     derive_seeds,
     die_with_parent,
     resolve_workers,
+    set_cuda_matmul,
 )
 from mop_core.learning.schedule import OnlineSchedule
 from mop_core.storage.artifacts import save_checkpoint, state_sha256, write_curve
@@ -439,20 +440,23 @@ def collect_task(task: str, config: CollectConfig, seed: int, paths: CollectPath
 
 
 def _collect_worker(task: str, config: CollectConfig, seed: int, paths: CollectPaths, device: str, progress: bool,
-                    position: int, threads: int) -> dict:
+                    position: int, threads: int, cuda_matmul: str) -> dict:
     configure_compute(threads)
+    set_cuda_matmul(cuda_matmul)
     return collect_task(task, config, seed, paths, device, progress, position)
 
 
 def collect_tasks(tasks: Sequence[tuple[str, CollectPaths]], config: CollectConfig, seed: int, device: str,
-                  progress: bool, workers: int, threads: int) -> dict[str, dict]:
-    """Every task's collect step, each in a spawned process with ``threads`` torch threads, ``workers``
-    at a time (``dvc repro`` runs stages one after another, so one stage per task would leave a core
-    idle). Returns each task's summary (:func:`collect_task`)."""
+                  progress: bool, workers: int, threads: int, cuda_matmul: str = "fp32") -> dict[str, dict]:
+    """Every task's collect step, each in a spawned process with ``threads`` torch threads and CUDA float32
+    matmuls in ``cuda_matmul`` (study.cuda_matmul), ``workers`` at a time (``dvc repro`` runs stages one
+    after another, so one stage per task would leave a core idle). Returns each task's summary
+    (:func:`collect_task`)."""
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=context,
                              initializer=die_with_parent) as pool:
-        futures = {task: pool.submit(_collect_worker, task, config, seed, paths, device, progress, i, threads)
+        futures = {task: pool.submit(_collect_worker, task, config, seed, paths, device, progress, i, threads,
+                               cuda_matmul)
                    for i, (task, paths) in enumerate(tasks)}
         return {task: future.result() for task, future in futures.items()}
 

@@ -18,8 +18,8 @@ from common import load_params, run_stage
 
 from mop_core.collect import collect_configs, collect_metrics, collect_tasks, collect_timing
 from mop_core.data import write_json
-from mop_core.experiment.study import study_config
-from mop_core.learning.runtime import progress_enabled, resolve_device
+from mop_core.experiment.study import study_config, study_device
+from mop_core.learning.runtime import progress_enabled
 from mop_core.storage.layout import COLLECT_METRICS, collect_paths, timing_file
 from mop_core.storage.timings import write_timing
 
@@ -28,10 +28,11 @@ def main() -> None:
     params = load_params()
     study = study_config(params)
     parallel, config = collect_configs(params, study)
-    device = str(resolve_device(study.device, "study.device"))
+    device = str(study_device(study))
     started = time.perf_counter()
     summaries = collect_tasks([(task, collect_paths(task)) for task in study.tasks], config, study.seed,
-                              device, progress_enabled(study.progress), parallel.workers, parallel.threads_per_worker)
+                              device, progress_enabled(study.progress), parallel.workers, parallel.threads_per_worker,
+                              study.cuda_matmul)
     write_json(COLLECT_METRICS, collect_metrics(summaries))
     write_timing(timing_file("collect"), time.perf_counter() - started, device, tasks=collect_timing(summaries),
                  workers=parallel.workers, threads_per_worker=parallel.threads_per_worker)

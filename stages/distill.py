@@ -17,8 +17,8 @@ from mop_core.data import read_json
 from mop_core.distill.config import distill_config
 from mop_core.distill.run import StudentSources, distill_students, finish_students
 from mop_core.experiment.catalogue import LOSS_ACTORS, build_catalogue
-from mop_core.experiment.study import distill_grid, study_config
-from mop_core.learning.runtime import configure_compute, progress_enabled, resolve_device
+from mop_core.experiment.study import distill_grid, study_config, study_device
+from mop_core.learning.runtime import configure_compute, progress_enabled
 from mop_core.provenance import check_student_sources
 from mop_core.storage.layout import student_inputs_file
 
@@ -38,7 +38,7 @@ def main() -> None:
     runs = [run for run in runs if run.seed in seeds]
     first = runs[0]
     config = first.configure(distill_config(params, first.loss))
-    device = resolve_device(study.device, "study.device")
+    device = study_device(study)
     for stage, files in {**first.upstream_files(), "student_inputs": (student_inputs_file(args.entry),)}.items():
         require_inputs(files, stage)
     check_student_sources(params, catalogue, runs, student_inputs_file(args.entry))  # before any compute

@@ -17,8 +17,8 @@ import argparse
 from common import check_level_and_seed, load_params, require_inputs, run_stage
 
 from mop_core.config import ConfigError, keys_under
-from mop_core.experiment.study import study_config, teacher_grid
-from mop_core.learning.runtime import configure_compute, progress_enabled, resolve_device
+from mop_core.experiment.study import study_config, study_device, teacher_grid
+from mop_core.learning.runtime import configure_compute, progress_enabled
 from mop_core.multitask import multitask_runs, train_multitask
 from mop_core.storage.files import read_json
 from mop_core.storage.layout import dataset_file, relabel_file
@@ -39,7 +39,7 @@ def main() -> None:
         raise ConfigError(f"study.tasks: the multi-task baseline needs at least two tasks, got {list(study.tasks)}")
     runs = multitask_runs(params, args.level, args.seeds)
     config = teacher_config(params, study, "deterministic", args.level)
-    device = resolve_device(study.device, "study.device")
+    device = study_device(study)
     sources = [DataSource(dataset_file(t, args.level), relabel_file(t, args.level), t, t, args.level)
                for t in study.tasks]
     require_inputs([p for s in sources for p in (s.dataset, s.relabel)], "relabel")

@@ -26,8 +26,8 @@ from common import check_level_and_seed, load_params, require_inputs, run_stage
 from mop_core.agents.pbrl import ACTOR_TYPES
 from mop_core.config import keys_under
 from mop_core.experiment.runs import SHARING_KINDS
-from mop_core.experiment.study import study_config, teacher_grid
-from mop_core.learning.runtime import configure_compute, progress_enabled, resolve_device
+from mop_core.experiment.study import study_config, study_device, teacher_grid
+from mop_core.learning.runtime import configure_compute, progress_enabled
 from mop_core.teachers import TeacherJob, entry_runs, group_lines, teacher_config, train_teacher_group
 
 
@@ -46,7 +46,7 @@ def main() -> None:
         check_level_and_seed(study, args.level, seed)
     runs = entry_runs(params, args.level, args.actor, args.sharing, args.tasks, args.seeds)
     config = teacher_config(params, study, args.actor, args.level)
-    device = resolve_device(study.device, "study.device")
+    device = study_device(study)
     jobs = [TeacherJob.of(run) for run in runs]
     require_inputs([path for job in jobs for s in job.sources for path in (s.dataset, s.relabel)], "relabel")
     configure_compute(teacher_grid(params).threads)

@@ -11,17 +11,23 @@ import zlib
 import numpy as np
 import pytest
 import torch
+from conftest import TEST_DEVICE
 
+from mop_core import collect
 from mop_core.config import ConfigError
+from mop_core.experiment.study import study_config, study_device
 from mop_core.learning import runtime
 from mop_core.learning.runtime import (
+    cuda_matmul,
     derive_seeds,
     parallel_map,
     progress_enabled,
     resolve_device,
     resolve_workers,
+    set_cuda_matmul,
     set_threads,
 )
+from mop_core.storage.timings import machine_facts
 
 
 def test_derive_seeds_is_a_function_of_the_key():
@@ -77,6 +83,53 @@ def test_resolve_device(monkeypatch):
     assert resolve_device("auto") == torch.device("cuda")
     assert resolve_device("cuda:1") == torch.device("cuda:1")
     assert resolve_device("cpu") == torch.device("cpu")
+
+
+@pytest.fixture
+def restore_cuda_matmul():
+    flags = torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32
+    yield
+    torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32 = flags
+
+
+def test_cuda_matmul_sets_both_of_torchs_tf32_flags_and_refuses_other_names(restore_cuda_matmul):
+    set_cuda_matmul("tf32")
+    assert torch.backends.cuda.matmul.allow_tf32 and torch.backends.cudnn.allow_tf32 and cuda_matmul() == "tf32"
+    set_cuda_matmul("fp32")  # cuDNN's TF32 is on by default in torch: fp32 turns it off too
+    assert not torch.backends.cuda.matmul.allow_tf32 and not torch.backends.cudnn.allow_tf32
+    assert cuda_matmul() == "fp32"
+    with pytest.raises(ConfigError, match=r"^study.cuda_matmul: expected one of fp32, tf32, got 'bf16'$"):
+        set_cuda_matmul("bf16")
+    assert cuda_matmul() == "fp32"
+
+
+def test_the_study_device_sets_the_studys_cuda_matmul(tiny_params, restore_cuda_matmul):
+    study = study_config({**tiny_params, "study": {**tiny_params["study"], "cuda_matmul": "tf32"}})
+    assert study_device(study) == torch.device(tiny_params["study"]["device"]) and cuda_matmul() == "tf32"
+
+
+def test_a_collect_worker_runs_in_the_studys_cuda_matmul(monkeypatch, restore_cuda_matmul):
+    """collect's task processes are spawned: each sets study.cuda_matmul itself (run here in-process)."""
+    monkeypatch.setattr(collect, "collect_task", lambda *args: cuda_matmul())
+    monkeypatch.setattr(collect, "configure_compute", lambda threads: None)
+    assert collect._collect_worker("stand", None, 0, None, "cpu", False, 0, 1, "tf32") == "tf32"
+    assert collect._collect_worker("stand", None, 0, None, "cpu", False, 0, 1, "fp32") == "fp32"
+
+
+@pytest.mark.skipif(TEST_DEVICE != "cuda" or not torch.cuda.is_available(), reason="needs MOP_TEST_DEVICE=cuda")
+def test_tf32_changes_a_cuda_matmul_and_the_timing_record_says_which_ran(restore_cuda_matmul):
+    """On the card: TF32 products differ from fp32 ones (so the flag reaches cuBLAS), by about TF32's
+    10-bit mantissa, and a timing record names the precision its run used."""
+    a, b = torch.randn(512, 512, device="cuda", generator=torch.Generator("cuda").manual_seed(0)).double().chunk(2)
+    exact = a @ b.T
+    set_cuda_matmul("fp32")
+    full = (a.float() @ b.float().T).double()
+    assert machine_facts("cuda")["cuda_matmul"] == "fp32"
+    set_cuda_matmul("tf32")
+    coarse = (a.float() @ b.float().T).double()
+    assert machine_facts("cuda")["cuda_matmul"] == "tf32"
+    full_error, coarse_error = (full - exact).abs().max().item(), (coarse - exact).abs().max().item()
+    assert coarse_error > 10 * full_error and coarse_error < 1e-2 * exact.abs().max().item()
 
 
 def test_progress_bars_show_when_requested_unless_switched_off(monkeypatch):

@@ -99,6 +99,7 @@ THREADS_EXPECTED = "expected a positive integer or 'auto' (the cores this proces
     ("study.seed", -1, "study.seed: expected a non-negative integer, got -1"),
     ("study.episode_length", 0, "study.episode_length: expected a positive integer, got 0"),
     ("study.device", 0, "study.device: expected a string, got 0"),
+    ("study.cuda_matmul", "bf16", "study.cuda_matmul: expected one of fp32, tf32, got 'bf16'"),
 ])
 def test_study_config_checks(tiny_params, key, value, message):
     with _raises(message):

@@ -17,10 +17,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
+import torch
+
 from mop_core.config import ConfigError, from_mapping, require, require_unique
 from mop_core.experiment.variants import OFFLINE_DATA, SHIFT_CORRECTIONS
 from mop_core.learning.nn import ACTOR_TYPES
-from mop_core.learning.runtime import resolve_threads, resolve_workers
+from mop_core.learning.runtime import CUDA_MATMULS, resolve_device, resolve_threads, resolve_workers, set_cuda_matmul
 from mop_core.learning.schedule import TrainSchedule
 from mop_core.storage.layout import LEVELS
 from mop_core.walker.tasks import check_task_list, get_task, substitute_base
@@ -46,6 +48,7 @@ class StudyConfig:
     seed: int = 0  # study seed; every task/stage derives its own seeds from it
     episode_length: int = 1000  # control steps per walker episode (1000 = dm_control's 25 s)
     device: str = "auto"  # "auto" (CUDA if present), "cpu", "cuda[:N]"
+    cuda_matmul: str = "fp32"  # CUDA float32 matmuls: fp32, or tf32 (faster, coarser; no effect on a CPU)
     progress: bool = True  # tqdm progress bars (MOP_PROGRESS=0 switches them off)
 
     def __post_init__(self) -> None:
@@ -56,6 +59,8 @@ class StudyConfig:
                 "a non-empty list without repeats", list(self.levels))
         require(self.seed >= 0, "seed", "a non-negative integer", self.seed)
         require(self.episode_length > 0, "episode_length", "a positive integer", self.episode_length)
+        require(self.cuda_matmul in CUDA_MATMULS, "cuda_matmul", f"one of {', '.join(CUDA_MATMULS)}",
+                self.cuda_matmul)
 
 
 @dataclass(frozen=True)
@@ -304,6 +309,14 @@ def positive_threads(value: Any, key: str) -> int:
 
 def study_config(params: Mapping[str, Any]) -> StudyConfig:
     return from_mapping(StudyConfig, section(params, "study"), "study")
+
+
+def study_device(study: StudyConfig) -> torch.device:
+    """The training stages' device (``study.device``), with this process's CUDA float32 matmuls set to
+    ``study.cuda_matmul`` (mop_core.learning.runtime.set_cuda_matmul)."""
+    device = resolve_device(study.device, "study.device")
+    set_cuda_matmul(study.cuda_matmul)
+    return device
 
 
 def teacher_grid(params: Mapping[str, Any]) -> TeacherGrid:

@@ -70,6 +70,26 @@ def resolve_device(name: str, key: str = "device") -> torch.device:
     raise ConfigError(f"{key}: expected 'auto', 'cpu' or 'cuda[:N]', got {name!r}")
 
 
+CUDA_MATMULS = ("fp32", "tf32")  # study.cuda_matmul: how CUDA multiplies float32 matrices
+
+
+def set_cuda_matmul(precision: str, key: str = "study.cuda_matmul") -> None:
+    """CUDA float32 matrix products (and cuDNN convolutions) in full ``fp32`` or in ``tf32`` (10-bit mantissa
+    inputs, fp32 accumulation) for the rest of this process; the CPU is unaffected. Both flags are set, as
+    torch leaves cuDNN's TF32 on by default. TF32 bought 1.6x on an H200's PBRL groups (benchmarks/README.md,
+    gpu 2026-12-04-tf32) and changes every GPU number in its last bits at least: benchmarks/tf32_check.py
+    tells whether a study's numbers move beyond their run-to-run intervals."""
+    if precision not in CUDA_MATMULS:
+        raise ConfigError(f"{key}: expected one of {', '.join(CUDA_MATMULS)}, got {precision!r}")
+    torch.backends.cuda.matmul.allow_tf32 = precision == "tf32"
+    torch.backends.cudnn.allow_tf32 = precision == "tf32"
+
+
+def cuda_matmul() -> str:
+    """This process's CUDA float32 matmul precision (:func:`set_cuda_matmul`): ``fp32`` or ``tf32``."""
+    return "tf32" if torch.backends.cuda.matmul.allow_tf32 else "fp32"
+
+
 def set_threads(threads: int) -> None:
     """Pin torch (and OpenMP/MKL of child libraries) to ``threads`` threads in this process.
 

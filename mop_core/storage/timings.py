@@ -46,6 +46,7 @@ def machine_facts(device: str | torch.device = "cpu") -> dict[str, Any]:
              "cpus": os.cpu_count() or 0, "versions": versions}
     if torch.device(device).type == "cuda":  # which card a GPU time was measured on
         facts["gpu"] = torch.cuda.get_device_name(torch.device(device))
+        facts["cuda_matmul"] = "tf32" if torch.backends.cuda.matmul.allow_tf32 else "fp32"  # study.cuda_matmul
     return facts
 
 
