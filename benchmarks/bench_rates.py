@@ -46,7 +46,7 @@ from mop_core.distill.states import TaskStates
 from mop_core.distill.student import Student
 from mop_core.learning.group_memory import device_room, measure_footprint, wave_sizes
 from mop_core.learning.nn import EnsembleCritic
-from mop_core.learning.runtime import available_cores, configure_compute, parallel_map, resolve_device
+from mop_core.learning.runtime import available_cores, configure_compute, parallel_map, resolve_device, set_cuda_matmul
 from mop_core.storage.timings import machine_facts
 from mop_core.walker.rollout import episode_returns
 
@@ -207,11 +207,11 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="a few updates per measure (a smoke test)")
     parser.add_argument("--out", help="write the rates as JSON here")
     parser.add_argument("--tf32", action="store_true",
-                        help="CUDA matmuls in TF32 (not what the study runs: its numbers are fp32; a measure of "
-                             "what TF32 would buy)")
+                        help="CUDA matmuls in TF32 (what a profile's study.cuda_matmul: tf32 runs; every profile "
+                             "runs fp32 until benchmarks/tf32_check.py passes)")
     args = parser.parse_args()
     configure_compute(args.threads)
-    torch.backends.cuda.matmul.allow_tf32 = args.tf32
+    set_cuda_matmul("tf32" if args.tf32 else "fp32")
     device = resolve_device(args.device, "--device")
     profile = Path(args.profile)
     params = yaml.safe_load(profile.read_text())

@@ -313,9 +313,19 @@ def one_level_grid(params: Mapping[str, Any]) -> dict:
     return out
 
 
+def _precision_note(profile_matmul: str, rates_tf32: bool) -> str:
+    """The heading's word on precision: where the profile's ``study.cuda_matmul`` and the rates' differ, the
+    plan is not the profile's cost (TF32 rates: too low for an fp32 study; fp32 rates: too high for TF32)."""
+    rates_matmul = "tf32" if rates_tf32 else "fp32"
+    if rates_matmul == profile_matmul:
+        return "; CUDA matmuls in TF32 (study.cuda_matmul), as the rates ran" if rates_tf32 else ""
+    return (f"; rates measured with CUDA matmuls in {rates_matmul.upper()}, not the {profile_matmul.upper()} "
+            f"this profile runs (study.cuda_matmul)")
+
+
 def plan_table(params: Mapping[str, Any], rates: Rates) -> str:
     rows = stage_hours(params, rates)
-    precision = "; rates measured with CUDA matmuls in TF32, not the fp32 the study runs" if rates.tf32 else ""
+    precision = _precision_note(params.get("study", {}).get("cuda_matmul", "fp32"), rates.tf32)
     lines = [f"Estimated cost on {rates.device} (one device, stages one after another{precision}):", "",
              "| stage | runs | seconds | hours |", "|---|---|---|---|"]
     lines += [f"| {stage} | {runs} | {hours * 3600:.0f} | {hours:.2f} |" for stage, (runs, hours) in rows.items()]

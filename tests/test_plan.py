@@ -112,18 +112,23 @@ def test_rollouts_over_every_core_cost_eval_and_shared_computation_their_all_cor
 
 
 def test_a_plan_from_tf32_rates_says_so_in_its_heading():
-    """bench_rates.py --tf32 measures what TF32 would buy; the study runs fp32, so a plan from such rates
-    must not read as the study's cost."""
+    """bench_rates.py --tf32 measures what TF32 buys: a plan whose rates ran in another precision than the
+    profile's study.cuda_matmul must not read as the profile's cost."""
     record = {"machine": {"gpu": "H200"}, "device": "cuda", "td3_updates_per_second": 100,
               "pbrl_updates_per_second": {"deterministic": 50.0, "gaussian": 40.0},
               "student_group_updates_per_second": {"mse": {"1": 200.0, "8": 100.0}, "q": {"1": 100.0, "8": 40.0}},
               "rollout_control_steps_per_second": 1000, "single_env_control_steps_per_second": 100}
     fp32, tf32 = Rates.from_json(record | {"tf32": False}), Rates.from_json(record | {"tf32": True})
     assert not Rates.from_json(record).tf32  # rates files before the flag: fp32
+    assert THESIS["study"]["cuda_matmul"] == "fp32"
     heading = plan_table(THESIS, tf32).splitlines()[0]
-    assert "TF32" in heading and "not the fp32 the study runs" in heading
+    assert "TF32, not the FP32 this profile runs (study.cuda_matmul)" in heading
     assert "TF32" not in plan_table(THESIS, fp32).splitlines()[0]
     assert plan_table(THESIS, tf32).splitlines()[1:] == plan_table(THESIS, fp32).splitlines()[1:]
+    in_tf32 = {**THESIS, "study": {**THESIS["study"], "cuda_matmul": "tf32"}}  # a profile that asks for TF32
+    assert plan_table(in_tf32, tf32).splitlines()[0].endswith("; CUDA matmuls in TF32 (study.cuda_matmul), as "
+                                                              "the rates ran):")
+    assert "FP32, not the TF32 this profile runs" in plan_table(in_tf32, fp32).splitlines()[0]
 
 
 def test_a_teacher_entry_costs_its_vectorised_group_and_the_baseline_its_own_rate():

@@ -1,0 +1,158 @@
+"""Does TF32 change what the study decides? One profile run twice on CUDA, ``study.cuda_matmul`` fp32 and
+tf32, and the two results compared (issue 39: "where TF32 is used, test that the study's numbers stay
+within their intervals"):
+
+    python benchmarks/tf32_check.py run --profile profiles/evidence.yaml --out /scratch/tf32   # a GPU machine
+    python benchmarks/tf32_check.py compare FP32/results TF32/results                          # two finished runs
+
+``run`` copies the project twice under ``--out`` (fp32/, tf32/), sets the profile's ``study.cuda_matmul`` and
+``study.device`` (default cuda), runs ``dvc repro`` in each, one after the other, then compares; the
+comparison is written to ``--out``/tf32_check.md and printed.
+
+``compare`` reads each run's ``verdicts.json`` and ``eval/metrics.json`` and says, for the TF32 run against
+the fp32 one:
+- every finding's verdict (reproduced, contradicted, inconclusive): the same or not. **The check passes when
+  every verdict is the same**: TF32 then changed nothing the study decides.
+- every finding cell's effect and every evaluated group's mean over runs (``ci_unit`` training_seed, n >= 3):
+  inside the fp32 run's 95% interval or not. Numbers, not the verdict: TF32 rounds differently from the
+  first update, so the two runs drift apart like runs of another seed would, and another draw of a mean of n
+  runs lands inside the first draw's 95% interval only ~83% of the time (the difference of two independent
+  means has sqrt(2) times a mean's spread: P(|Z| < 1.96/sqrt(2)) = 0.83). A share far under that says TF32
+  moved the numbers beyond run-to-run noise.
+A flipped verdict can be noise too (a finding near its threshold): rerun the fp32 study with another
+``study.seed`` to see whether it flips as often without TF32.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+PRECISIONS = ("fp32", "tf32")
+INDEPENDENT_REDRAW_INSIDE = 0.83  # P(another draw's mean inside a 95% interval of n runs), see the docstring
+
+
+@dataclass
+class Comparison:
+    """The TF32 run against the fp32 run: verdicts ``(finding, fp32, tf32)``, and numbers ``(name, tf32
+    value, fp32 ci_low, fp32 ci_high, inside)`` for finding cells and evaluated groups."""
+
+    verdicts: list[tuple[str, str, str]] = field(default_factory=list)
+    cells: list[tuple[str, float, float, float, bool]] = field(default_factory=list)
+    groups: list[tuple[str, float, float, float, bool]] = field(default_factory=list)
+
+    @property
+    def flipped(self) -> list[tuple[str, str, str]]:
+        return [v for v in self.verdicts if v[1] != v[2]]
+
+    @property
+    def passed(self) -> bool:
+        return bool(self.verdicts) and not self.flipped
+
+
+def _read(results: Path, name: str) -> dict:
+    path = results / name
+    if not path.is_file():
+        raise SystemExit(f"{path}: missing; expected a finished study's results directory (dvc repro's results/)")
+    return json.loads(path.read_text())
+
+
+def _inside(name: str, value: float, interval: dict) -> tuple[str, float, float, float, bool] | None:
+    low, high = interval.get("ci_low"), interval.get("ci_high")
+    if value is None or low is None or high is None:
+        return None  # no interval over runs (fewer than 3) or no value: nothing to place
+    return name, float(value), float(low), float(high), bool(low <= value <= high)
+
+
+def compare(fp32: Path, tf32: Path) -> Comparison:
+    """Verdicts, finding cells and evaluated groups of ``tf32`` (a results directory) against ``fp32``'s."""
+    out = Comparison()
+    a, b = _read(fp32, "verdicts.json")["findings"], _read(tf32, "verdicts.json")["findings"]
+    if set(a) != set(b):
+        raise SystemExit(f"{tf32}/verdicts.json: expected the findings of {fp32}/verdicts.json (the same profile), "
+                         f"got {sorted(set(a) ^ set(b))} in one only")
+    for finding in sorted(a):
+        out.verdicts.append((finding, a[finding]["verdict"], b[finding]["verdict"]))
+        for cell, interval in a[finding].get("cells", {}).items():
+            placed = _inside(f"{finding}: {cell}", b[finding].get("cells", {}).get(cell, {}).get("value"), interval)
+            out.cells += [placed] if placed else []
+    a, b = _read(fp32, "eval/metrics.json"), _read(tf32, "eval/metrics.json")
+    for task, groups in a.items():
+        for group, summary in groups.items():
+            other = b.get(task, {}).get(group)
+            if isinstance(summary, dict) and summary.get("ci_unit") == "training_seed" and isinstance(other, dict):
+                placed = _inside(f"{task}: {group}", other.get("mean"), summary)
+                out.groups += [placed] if placed else []
+    return out
+
+
+def _share(rows: list) -> str:
+    inside = sum(row[4] for row in rows)
+    return f"{inside} of {len(rows)} ({inside / len(rows):.0%})" if rows else "none (no interval over runs)"
+
+
+def report(result: Comparison) -> str:
+    """The comparison as markdown: the check's outcome, the flipped verdicts, the shares inside."""
+    lines = [f"# TF32 against fp32: {'passed' if result.passed else 'FAILED'}", "",
+             f"- verdicts the same: {len(result.verdicts) - len(result.flipped)} of {len(result.verdicts)} findings",
+             f"- finding effects inside the fp32 run's 95% interval: {_share(result.cells)}",
+             f"- evaluated groups' means (over runs) inside the fp32 run's 95% interval: {_share(result.groups)}",
+             f"- for scale: another draw of the runs lands inside ~{INDEPENDENT_REDRAW_INSIDE:.0%} of the time", ""]
+    if result.flipped:
+        lines += ["| finding | fp32 | tf32 |", "|---|---|---|"]
+        lines += [f"| {name} | {x} | {y} |" for name, x, y in result.flipped] + [""]
+    outside = [row for row in result.cells + result.groups if not row[4]]
+    if outside:
+        lines += ["| outside | tf32 | fp32 interval |", "|---|---|---|"]
+        lines += [f"| {name} | {value:.3g} | [{low:.3g}, {high:.3g}] |" for name, value, low, high, _ in outside]
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def _project(profile: Path, precision: str, device: str, target: Path) -> Path:
+    """A committed copy of the project whose params.yaml is ``profile`` in ``precision`` on ``device``."""
+    sys.path.insert(0, str(ROOT / "scripts"))
+    from bad_inputs import committed_project
+
+    params = yaml.safe_load(profile.read_text())
+    params["study"] |= {"cuda_matmul": precision, "device": device}
+    committed_project(ROOT, target)  # the code, DAG and profiles in a new git repository
+    (target / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    return target
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    commands = parser.add_subparsers(dest="command", required=True)
+    run = commands.add_parser("run", help="run a profile in fp32 and in tf32 on CUDA, then compare")
+    run.add_argument("--profile", type=Path, required=True, help="a params file, e.g. profiles/evidence.yaml")
+    run.add_argument("--out", type=Path, required=True, help="a new directory: fp32/, tf32/, tf32_check.md")
+    run.add_argument("--device", default="cuda", help="study.device of both runs (cpu: a dry run, no TF32)")
+    pair = commands.add_parser("compare", help="compare two finished studies' results directories")
+    pair.add_argument("fp32", type=Path)
+    pair.add_argument("tf32", type=Path)
+    args = parser.parse_args(argv)
+    if args.command == "compare":
+        text = report(compare(args.fp32, args.tf32))
+    else:
+        if not args.profile.is_file():
+            parser.error(f"--profile: {args.profile} is not a file")
+        if args.out.exists():
+            parser.error(f"--out: {args.out} exists; expected a new directory (nothing is overwritten)")
+        for precision in PRECISIONS:
+            project = _project(args.profile, precision, args.device, args.out / precision)
+            subprocess.run(["dvc", "repro"], cwd=project, check=True)
+        text = report(compare(args.out / "fp32" / "results", args.out / "tf32" / "results"))
+        (args.out / "tf32_check.md").write_text(text)
+    print(text, end="")
+    raise SystemExit(0 if "passed" in text.splitlines()[0] else 1)
+
+
+if __name__ == "__main__":
+    main()
