@@ -6,7 +6,9 @@
 #   2. a shortened thesis-profile `dvc repro`: every schedule at 0.1%, one level, two learning-curve points per
 #      run (mop_core.plan --scale --one-level --max-evaluations), its per-stage times next to the plan's
 #      estimate for that same shortened profile;
-#   3. the test suite with every learner test and the tiny profile's `dvc repro` on CUDA (MOP_TEST_DEVICE).
+#   3. the test suite with every learner test and the tiny profile's `dvc repro` on CUDA (MOP_TEST_DEVICE);
+#   4. (only when MOP_GPU_CHECK_PARTS names tf32) benchmarks/tf32_check.py: part 2's shortened profile (or
+#      MOP_GPU_CHECK_TF32_PROFILE) run in fp32 and in TF32, compared by verdicts and intervals: tf32.log.
 # Results land in $OUT (or ./gpu_check_out): gpu.txt, rates.json, rates.log, plan.md, repro.log, short_plan.md,
 # short_timings.md, tests.log.
 #
@@ -15,7 +17,7 @@
 # and send .gpu along; the script unpacks it when it is there. Tried on CPU first with
 #   MOP_GPU_CHECK_DEVICE=cpu MOP_GPU_CHECK_TESTS=tests/test_distill.py MOP_GPU_CHECK_RATES_ARGS=--quick \
 #   MOP_GPU_CHECK_SCALE=0.0001 bash benchmarks/gpu_check.sh
-# Time limits per part: MOP_GPU_CHECK_LIMITS="rates repro tests" seconds (default "100 200 260": with the
+# Time limits per part: MOP_GPU_CHECK_LIMITS="rates repro tests tf32" seconds (default "100 200 260 400": with the
 # unpacking, under the 600 s a device command may run). The parts run, in this order: MOP_GPU_CHECK_PARTS
 # (default "rates repro tests"; e.g. "tests rates" checks the captured
 # updates against eager first, then times them). MOP_GPU_CHECK_PROFILE: part 1's profile (default
@@ -30,7 +32,7 @@ ROOT=$PWD
 OUT=${OUT:-$ROOT/gpu_check_out}
 DEVICE=${MOP_GPU_CHECK_DEVICE:-cuda}
 TESTS=${MOP_GPU_CHECK_TESTS:-tests}
-read -r LIMIT_RATES LIMIT_REPRO LIMIT_TESTS <<< "${MOP_GPU_CHECK_LIMITS:-100 200 260}"
+read -r LIMIT_RATES LIMIT_REPRO LIMIT_TESTS LIMIT_TF32 <<< "${MOP_GPU_CHECK_LIMITS:-100 200 260 400}"
 SCALE=${MOP_GPU_CHECK_SCALE:-0.001}
 PARTS=${MOP_GPU_CHECK_PARTS:-rates repro tests}
 PROFILE=${MOP_GPU_CHECK_PROFILE:-profiles/thesis.yaml}  # the profile part 1 measures at and plans
@@ -100,6 +102,19 @@ part_tests() {
     > "$OUT/tests.log" 2>&1
   echo "tests exit $?" >> "$OUT/tests.log"
   tail -n 15 "$OUT/tests.log"
+}
+
+# ---- 4. TF32 against fp32 (only when named in MOP_GPU_CHECK_PARTS; its log is one more file) ------------
+part_tf32() {
+  TF32_PROFILE=${MOP_GPU_CHECK_TF32_PROFILE:-/tmp/mop_tf32_profile.yaml}  # default: part 2's shortened profile
+  [ -n "${MOP_GPU_CHECK_TF32_PROFILE:-}" ] || "$PY" -m mop_core.plan profiles/thesis.yaml --scale "$SCALE" \
+    --one-level --max-evaluations 2 --out "$TF32_PROFILE"
+  stamp "TF32 against fp32: benchmarks/tf32_check.py run on $TF32_PROFILE"
+  rm -rf /tmp/mop_tf32
+  timeout "$LIMIT_TF32" "$PY" benchmarks/tf32_check.py run --profile "$TF32_PROFILE" --out /tmp/mop_tf32 \
+    --device "$DEVICE" > "$OUT/tf32.log" 2>&1
+  echo "tf32_check exit $?" >> "$OUT/tf32.log"
+  tail -n 12 "$OUT/tf32.log"
 }
 
 for part in $PARTS; do "part_$part"; done
