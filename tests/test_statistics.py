@@ -93,8 +93,9 @@ def test_run_level_iqm_and_its_interval_equal_rliables(runs):
 
 def test_run_level_probability_of_improvement_and_its_interval_equal_rliables():
     x, y = _scores(11, 5, 2, 60.0), _scores(12, 4, 2)
-    ours = stratified_bootstrap(probability_of_improvement, [x, y], reps=20000, seed=0)
-    points, intervals = _rliable_intervals({"x,y": [x, y]}, rliable_metrics.probability_of_improvement, 20000, 0)
+    # 2000 resamples: rliable's loop over them takes ~1 s per 600 (20000: 23 s); the intervals agree to 1e-3
+    ours = stratified_bootstrap(probability_of_improvement, [x, y], reps=2000, seed=0)
+    points, intervals = _rliable_intervals({"x,y": [x, y]}, rliable_metrics.probability_of_improvement, 2000, 0)
     assert ours["value"] == pytest.approx(points["x,y"], rel=1e-12)
     assert [ours["ci_low"], ours["ci_high"]] == pytest.approx(np.ravel(intervals["x,y"]).tolist(), abs=0.03)
 
