@@ -385,8 +385,11 @@ def classify(result: subprocess.CompletedProcess | None, culprit: str) -> tuple[
     return ("named" if named else "unclear"), last[:300]
 
 
-def snapshot(ws: Path) -> Path:
-    backup = Path(tempfile.mkdtemp(prefix="bad-inputs-backup-"))
+def snapshot(ws: Path, backup: Path | None = None) -> Path:
+    """A copy of ``ws``'s params, data and results in ``backup`` (a new folder; default: a temporary one,
+    which the caller removes) for :func:`restore`."""
+    backup = Path(tempfile.mkdtemp(prefix="bad-inputs-backup-")) if backup is None else backup
+    backup.mkdir(parents=True, exist_ok=True)
     for name in ("params.yaml", "data", "results"):
         src = ws / name
         (shutil.copytree if src.is_dir() else shutil.copy)(src, backup / name)

@@ -11,6 +11,7 @@ import shlex
 import shutil
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -665,25 +666,37 @@ def test_bad_parameter_fails_before_compute_and_names_the_key(repo, tmp_path):
     assert not (work / "data" / "students").exists()
 
 
-def test_every_swapped_rebuilt_or_emptied_input_of_the_later_families_is_refused_by_name(repo, tmp_path):
-    """The later families' inputs (scripts/bad_inputs.provenance_cases: composed datasets swapped or composed
-    with other episodes, reference episodes and collect data of another task, a teacher of other widths, a
-    student of another width, emptied records), each on a copy of the study: exit 2, one ``error:`` line
-    naming the file, and nothing the stage writes changed (it refused before any compute)."""
-    ws = tmp_path / "ws"
-    for name in ("stages", "mop_core", "profiles", "params.yaml", "dvc.yaml", "data", "results"):
-        (shutil.copytree if (repo / name).is_dir() else shutil.copy)(repo / name, ws / name)
-    backup = snapshot(ws)
+def _refusals(ws: Path, cases) -> list[tuple]:
+    """Each case on workspace ``ws``, one after another: (name, verdict, last line, outputs unchanged)."""
+    backup = snapshot(ws, ws.parent / f"{ws.name}-backup")
     records = {"student_inputs": "data/student_inputs", "state_shift": "results/state_shift/metrics.json",
                "report": "results/report.md", "compose": "results/compose/metrics.json"}
     outcomes = []
-    for case in provenance_cases():
+    for case in cases:
         case.breaks(ws)
         written = ws / records.get(case.stage, "results/eval/metrics.json")
         before = _tree_digest(written)
         result = run_stage_script([sys.executable, *_stage_command(case)], ws)
         outcomes.append((case.name, *classify(result, case.culprit), before == _tree_digest(written)))
         restore(ws, backup)
+    return outcomes
+
+
+def test_every_swapped_rebuilt_or_emptied_input_of_the_later_families_is_refused_by_name(repo, tmp_path):
+    """The later families' inputs (scripts/bad_inputs.provenance_cases: composed datasets swapped or composed
+    with other episodes, reference episodes and collect data of another task, a teacher of other widths, a
+    student of another width, emptied records), each on a copy of the study: exit 2, one ``error:`` line
+    naming the file, and nothing the stage writes changed (it refused before any compute). The cases run
+    on one copy per core (at most 4), one single-threaded stage process each."""
+    cases = provenance_cases()
+    workers = max(1, min(4, len(os.sched_getaffinity(0)), len(cases)))
+    workspaces = [tmp_path / f"ws{i}" for i in range(workers)]
+    for ws in workspaces:
+        for name in ("stages", "mop_core", "profiles", "params.yaml", "dvc.yaml", "data", "results"):
+            (shutil.copytree if (repo / name).is_dir() else shutil.copy)(repo / name, ws / name)
+    with ThreadPoolExecutor(workers) as pool:
+        parts = pool.map(_refusals, workspaces, [cases[i::workers] for i in range(workers)])
+    outcomes = [outcome for part in parts for outcome in part]
     assert len(outcomes) == 18 and all(o[1] == "named" and o[3] for o in outcomes), \
         [o for o in outcomes if o[1] != "named" or not o[3]]
 
