@@ -42,7 +42,6 @@ import math
 from typing import Callable, Sequence
 
 import numpy as np
-from scipy import stats
 
 #: Fewer training seeds than this get no interval over seeds (t(0.975, 1) = 12.7 makes 2 seeds meaningless).
 MIN_SEEDS_FOR_SEED_CI = 3
@@ -64,6 +63,8 @@ def confidence_interval(values: Sequence[float], confidence: float = 0.95,
     if n == 1:
         return {"mean": mean, "std": None, "ci_low": None, "ci_high": None, "n": 1}
     sd = float(x.std(ddof=1))
+    from scipy import stats  # here, not at the top: scipy.stats costs 0.5 s to import in every stage process
+
     half = float(stats.t.ppf(0.5 + confidence / 2, n - 1) * sd / math.sqrt(n))
     out = {"mean": mean, "std": sd, "ci_low": mean - half, "ci_high": mean + half, "n": n}
     if bounds is not None:
@@ -100,6 +101,8 @@ def iqm(scores: np.ndarray) -> np.ndarray:
     a single ``[n, tasks]`` matrix). The mean of the middle 50% of the scores, pooled over tasks."""
     scores = np.asarray(scores, dtype=np.float64)
     flat = scores.reshape(*scores.shape[:-2], -1)
+    from scipy import stats
+
     return stats.trim_mean(flat, proportiontocut=0.25, axis=-1)
 
 
