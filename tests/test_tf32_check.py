@@ -6,11 +6,12 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import ROOT
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from tf32_check import compare, main, report  # noqa: E402
+from tf32_check import Placed, compare, main, redraw_inside, report  # noqa: E402
 
 RECORD = ROOT / "record" / "evidence" / "results"  # a finished study (the evidence record)
 
@@ -34,12 +35,30 @@ def test_the_same_verdicts_pass_and_the_numbers_are_placed_in_the_fp32_intervals
     tf32 = _results(tmp_path / "b", "inconclusive", 2.0, 480.0)
     result = compare(fp32, tf32)
     assert result.passed and result.verdicts == [("ds_degrades_expert", "inconclusive", "inconclusive")]
-    assert result.cells == [("ds_degrades_expert: stand", 2.0, -1.0, 1.0, False)]  # walk: no interval
-    assert result.groups == [("stand: student_mse_medium", 480.0, 400.0, 500.0, True)]  # episodes: not runs
+    assert result.cells == [Placed("ds_degrades_expert: stand", 2.0, -1.0, 1.0, 3)]  # walk: no interval
+    assert not result.cells[0].inside
+    assert result.groups == [Placed("stand: student_mse_medium", 480.0, 400.0, 500.0, 3)]  # episodes: not runs
+    assert result.groups[0].inside
     text = report(result)
     assert text.startswith("# TF32 against fp32: passed")
-    assert "finding effects inside the fp32 run's 95% interval: 0 of 1 (0%)" in text
-    assert "| ds_degrades_expert: stand | 2 | [-1, 1] |" in text
+    assert "finding effects inside the fp32 run's 95% interval: 0 of 1 (0%; another draw of the runs: ~91%)" in text
+    assert "| ds_degrades_expert: stand | 2 | [-1, 1] | 3 |" in text
+
+
+def test_another_draws_chance_to_land_inside_a_t_interval_falls_to_the_normal_limit():
+    """P(|t_{n-1}| < t_{n-1,0.975} / sqrt(2)): closed form for 2 degrees of freedom, x / sqrt(2 + x^2), and
+    the normal limit P(|Z| < 1.96 / sqrt(2)) = 0.834; checked against a simulation of two draws at n = 5."""
+    x = 4.302652729911275 / 2 ** 0.5  # t_{2,0.975} / sqrt(2)
+    assert redraw_inside(3) == pytest.approx(x / (2 + x * x) ** 0.5, abs=1e-9)
+    assert redraw_inside(10_000) == pytest.approx(0.8342, abs=1e-3)
+    assert redraw_inside(3) > redraw_inside(5) > redraw_inside(30) > redraw_inside(10_000)
+    rng = np.random.default_rng(0)
+    first, second = rng.normal(size=(200_000, 5)), rng.normal(size=(200_000, 5))
+    half = 2.7764451051977987 * first.std(axis=1, ddof=1) / 5 ** 0.5  # t_{4,0.975}
+    share = np.mean(np.abs(second.mean(axis=1) - first.mean(axis=1)) <= half)
+    assert share == pytest.approx(redraw_inside(5), abs=0.005)
+    with pytest.raises(ValueError, match="n: expected at least 2 runs, got 1"):
+        redraw_inside(1)
 
 
 def test_a_flipped_verdict_fails_the_check_and_is_listed(tmp_path, capsys):
@@ -75,5 +94,5 @@ def test_a_run_refuses_an_existing_out_directory_before_running_anything(tmp_pat
 def test_the_evidence_record_against_itself_keeps_every_verdict_and_number():
     result = compare(RECORD, RECORD)
     assert result.passed and len(result.verdicts) == 45
-    assert result.cells and all(row[4] for row in result.cells)
-    assert result.groups and all(row[4] for row in result.groups)
+    assert result.cells and all(row.inside for row in result.cells)
+    assert result.groups and all(row.inside for row in result.groups)
