@@ -101,6 +101,19 @@ def test_every_stage_depends_on_the_code_it_imports():
     assert not missing, f"dvc.yaml stages miss code dependencies: {missing}"
 
 
+def test_every_stage_that_picks_the_device_lists_the_params_it_picks_by():
+    """A stage whose script calls study_device trains on study.device in study.cuda_matmul: dvc.yaml must
+    list both (or the whole study section), or a changed precision would not rerun it (collect once did not)."""
+    stages = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
+    picking = {name for name, stage in stages.items()
+               if "study_device(" in (ROOT / stage["cmd"].split()[1]).read_text()}
+    assert {"collect", "train_teachers", "train_multitask", "distill"} <= picking
+    unlisted = {name: keys for name in picking
+                if (keys := {"study.device", "study.cuda_matmul"} - set(stages[name]["params"]))
+                and "study" not in stages[name]["params"]}
+    assert not unlisted, f"dvc.yaml stages miss the device params they read: {unlisted}"
+
+
 def test_the_import_walk_finds_lazy_and_transitive_imports():
     files = imported_files(ROOT / "stages" / "eval.py")
     assert "mop_core/collect.py" in files  # through mop_core.policies (the behaviour checkpoint's kind)
