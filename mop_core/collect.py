@@ -447,7 +447,7 @@ def _collect_worker(task: str, config: CollectConfig, seed: int, paths: CollectP
 
 
 def collect_tasks(tasks: Sequence[tuple[str, CollectPaths]], config: CollectConfig, seed: int, device: str,
-                  progress: bool, workers: int, threads: int, cuda_matmul: str = "fp32") -> dict[str, dict]:
+                  progress: bool, workers: int, threads: int, cuda_matmul: str) -> dict[str, dict]:
     """Every task's collect step, each in a spawned process with ``threads`` torch threads and CUDA float32
     matmuls in ``cuda_matmul`` (study.cuda_matmul), ``workers`` at a time (``dvc repro`` runs stages one
     after another, so one stage per task would leave a core idle). Returns each task's summary

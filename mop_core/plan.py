@@ -68,7 +68,7 @@ class Rates:
     pbrl_group: Mapping[str, Mapping[int, float]] | None = None  # actor type -> group size R -> group updates/s
     multitask: float | None = None  # updates/s of the naive multi-task baseline (one task's step each)
     multitask_group: Mapping[int, float] | None = None  # group size R -> updates/s of R baselines as one group
-    tf32: bool = False  # CUDA matmuls ran in TF32 (bench_rates.py --tf32): not the fp32 the study runs
+    tf32: bool = False  # CUDA matmuls ran in TF32 (bench_rates.py --tf32, what study.cuda_matmul: tf32 runs)
 
     @classmethod
     def from_json(cls, record: Mapping[str, Any]) -> "Rates":
@@ -325,7 +325,8 @@ def _precision_note(profile_matmul: str, rates_tf32: bool) -> str:
 
 def plan_table(params: Mapping[str, Any], rates: Rates) -> str:
     rows = stage_hours(params, rates)
-    precision = _precision_note(params.get("study", {}).get("cuda_matmul", "fp32"), rates.tf32)
+    on_cuda = rates.device != "cpu"  # the GPU's name (or cuda); the flag does nothing on a CPU: its rates fit either
+    precision = _precision_note(params.get("study", {}).get("cuda_matmul", "fp32"), rates.tf32) if on_cuda else ""
     lines = [f"Estimated cost on {rates.device} (one device, stages one after another{precision}):", "",
              "| stage | runs | seconds | hours |", "|---|---|---|---|"]
     lines += [f"| {stage} | {runs} | {hours * 3600:.0f} | {hours:.2f} |" for stage, (runs, hours) in rows.items()]

@@ -19,6 +19,8 @@ import torch
 import yaml
 from conftest import ROOT, TEST_DEVICE
 
+from mop_core.learning.runtime import available_cores
+
 sys.path.insert(0, str(ROOT / "scripts"))
 from bad_inputs import classify, committed_project, copy_project, provenance_cases, restore, snapshot  # noqa: E402
 from bad_inputs import run as run_stage_script  # noqa: E402
@@ -688,9 +690,9 @@ def test_every_swapped_rebuilt_or_emptied_input_of_the_later_families_is_refused
     with other episodes, reference episodes and collect data of another task, a teacher of other widths, a
     student of another width, emptied records), each on a copy of the study: exit 2, one ``error:`` line
     naming the file, and nothing the stage writes changed (it refused before any compute). The cases run
-    on one copy per core (at most 4), one single-threaded stage process each."""
+    on one copy of the study per core (at most 4), one case at a time on each."""
     cases = provenance_cases()
-    workers = max(1, min(4, len(os.sched_getaffinity(0)), len(cases)))
+    workers = min(4, available_cores(), len(cases))
     workspaces = [tmp_path / f"ws{i}" for i in range(workers)]
     for ws in workspaces:
         for name in ("stages", "mop_core", "profiles", "params.yaml", "dvc.yaml", "data", "results"):

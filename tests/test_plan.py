@@ -129,6 +129,8 @@ def test_a_plan_from_tf32_rates_says_so_in_its_heading():
     assert plan_table(in_tf32, tf32).splitlines()[0].endswith("; CUDA matmuls in TF32 (study.cuda_matmul), as "
                                                               "the rates ran):")
     assert "FP32, not the TF32 this profile runs" in plan_table(in_tf32, fp32).splitlines()[0]
+    on_cpu = Rates.from_json(record | {"device": "cpu", "machine": {}})  # TF32 does nothing on a CPU
+    assert on_cpu.device == "cpu" and "TF32" not in plan_table(in_tf32, on_cpu).splitlines()[0]
 
 
 def test_a_teacher_entry_costs_its_vectorised_group_and_the_baseline_its_own_rate():
