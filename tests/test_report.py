@@ -259,3 +259,13 @@ def test_the_sharing_section_repeats_figure_6_9_and_table_6_2_on_a_substitutes_t
                                                    for task in TASKS}}
     assert "(stand_still: section 7b's second task set trains on it, from its base task's data)" in \
         cross_task_section(results)
+
+
+def test_the_header_says_when_the_study_multiplies_in_tf32(tiny_params):
+    from mop_core.report.load import settings
+
+    assert "TF32" not in settings(tiny_params)["summary"]  # fp32, every profile's choice: nothing to say
+    tf32 = {**tiny_params, "study": {**tiny_params["study"], "cuda_matmul": "tf32"}}
+    assert settings(tf32)["summary"].endswith("; CUDA float32 matmuls in TF32 (study.cuda_matmul: faster and coarser "
+                                              "than fp32, no effect on a CPU; benchmarks/tf32_check.py compares a "
+                                              "study with its fp32 twin)")

@@ -51,6 +51,9 @@ def settings(params: Mapping[str, Any]) -> dict:
                f"PBRL teachers {teachers['schedule']['steps']} steps, seeds {teachers['seeds']}; students "
                f"{distill['schedule']['steps']} steps, seeds {distill['seeds']}; eval {evaluation['episodes']} "
                "episodes per policy and task")
+    if params.get("study", {}).get("cuda_matmul") == "tf32":  # issue 39: where TF32 is used, the report says so
+        summary += ("; CUDA float32 matmuls in TF32 (study.cuda_matmul: faster and coarser than fp32, no effect on "
+                    "a CPU; benchmarks/tf32_check.py compares a study with its fp32 twin)")
     hidden = distill.get("student", {}).get("hidden_sizes", [])
     return {"summary": summary,
             "teacher_seed": distill["teacher_seed"], "snapshot_eval_episodes": collect.get("snapshot_eval_episodes"),
