@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import torch
+
 from mop_core.report.headline import headline_metrics
 from mop_core.storage.timings import stage_time_table, write_timing
 
@@ -13,6 +15,7 @@ def test_a_timing_record_has_the_seconds_the_extras_and_the_machine(tmp_path):
     assert json.loads((tmp_path / "t.json").read_text()) == record
     assert record["seconds"] == 12.3 and record["steps"] == 10 and record["device"] == "cpu"
     assert record["threads"] >= 1 and record["cpus"] >= 1 and "torch==" in record["versions"] and record["cpu"]
+    assert record["cpu_capability"] == torch.backends.cpu.get_cpu_capability() != ""  # AVX512 on this machine
 
 
 def test_the_time_table_sums_matrix_runs_in_pipeline_order(tmp_path):

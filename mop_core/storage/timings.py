@@ -38,12 +38,15 @@ def cpu_model() -> str:
 
 
 def machine_facts(device: str | torch.device = "cpu") -> dict[str, Any]:
-    """What a time depends on besides the work: the device, the processor, torch's threads, the cores, the
-    packages (one pip-style string, ``torch==2.13.0 dm-control==1.0.50 ...``: one column in ``dvc metrics
-    show``)."""
+    """What a time depends on besides the work: the device, the processor (and the vector ISA torch uses on
+    it), torch's threads, the cores, the packages (one pip-style string, ``torch==2.13.0 dm-control==1.0.50
+    ...``: one column in ``dvc metrics show``)."""
     versions = " ".join(f"{name}=={version}" for name, version in package_versions().items())
     facts = {"device": str(device), "cpu": cpu_model(), "threads": torch.get_num_threads(),
-             "cpus": os.cpu_count() or 0, "versions": versions}
+             "cpus": os.cpu_count() or 0, "versions": versions,
+             # the vector ISA torch's CPU kernels dispatch to (AVX512, AVX2, ...): two machines sold as one model
+             # may differ in it, and the study's CPU float path (TD3's datasets) has differed across sessions
+             "cpu_capability": torch.backends.cpu.get_cpu_capability()}
     if torch.device(device).type == "cuda":  # which card a GPU time was measured on
         facts["gpu"] = torch.cuda.get_device_name(torch.device(device))
         facts["cuda_matmul"] = "tf32" if torch.backends.cuda.matmul.allow_tf32 else "fp32"  # study.cuda_matmul
