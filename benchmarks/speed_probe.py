@@ -10,7 +10,9 @@ kinds of work at fixed sizes that never follow a profile (so probes of different
   ensemble 5, batch 256, 1 OOD action) on 2 threads, as a quick teacher stage runs them;
 - ``rollout_control_steps_per_second``: 10 walkers stepped together under one batched policy, 1 thread.
 
-Each rate is the median of 3 timed blocks after a warm-up block (bench_rates.per_second).
+Each rate is the median of 3 timed blocks after a warm-up block (bench_rates.per_second). Beside the
+rates, ``float_path`` holds the machine's float-path fingerprint (benchmarks/float_path.py): two
+records whose fingerprints differ were computed with other rounding, so their numbers differ too.
 ``scripts/record.py`` runs it after a study and stores it beside the record (``speed_probe.json``);
 the README's time table quotes it.
 
@@ -33,6 +35,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_pbrl import random_batch  # noqa: E402
 from bench_rates import per_second  # noqa: E402
+from float_path import float_path  # noqa: E402
 
 from mop_core.agents.pbrl import PBRLConfig  # noqa: E402
 from mop_core.agents.pbrl_group import PBRLGroup, stack_batches  # noqa: E402
@@ -82,6 +85,7 @@ def probe(quick: bool = False) -> dict:
               "pbrl_group_updates_per_second": pbrl_group_rate(3 if quick else 100),
               "rollout_control_steps_per_second": rollout_rate(),
               "machine": machine_facts(CPU),
+              "float_path": float_path(),
               "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
     result["seconds"] = round(time.perf_counter() - start, 1)
     return result
@@ -92,7 +96,12 @@ def summary(result: dict) -> str:
     return (f"TD3 {result['td3_updates_per_second']:.0f} updates/s (1 thread), PBRL group of {PBRL_GROUP} "
             f"{result['pbrl_group_updates_per_second']:.1f} updates/s (2 threads), rollouts "
             f"{result['rollout_control_steps_per_second']:.0f} control steps/s (10 walkers, 1 thread)"
-            + (f"; {result['machine']['cpu']}" if result.get("machine", {}).get("cpu") else ""))
+            + (f"; {result['machine']['cpu']}" if result.get("machine", {}).get("cpu") else "")
+            + (f"; float path {_path_text(result['float_path'])}" if result.get("float_path") else ""))
+
+
+def _path_text(path: dict[str, str]) -> str:
+    return ", ".join(f"{name} {digest}" for name, digest in path.items())
 
 
 def main(argv: list[str] | None = None) -> int:

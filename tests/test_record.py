@@ -47,6 +47,25 @@ def test_recording_the_quick_study_again_keeps_another_profiles_record_inside_it
     assert not (root / "record" / "stale.txt").exists()
 
 
+def test_a_new_record_on_another_float_path_says_which_library_parted(tmp_path, capsys):
+    from record import write_record
+
+    root = tmp_path / "project"
+    (root / "results").mkdir(parents=True)
+    (root / "results" / "a.txt").write_text("a\n")
+    lock = {"stages": {"s": {"outs": [{"path": "results/a.txt", "md5": output_md5(root / "results" / "a.txt")}]}}}
+    (root / "dvc.lock").write_text(yaml.safe_dump(lock))
+    speed = {"td3_updates_per_second": 150.0, "pbrl_group_updates_per_second": 40.0,
+             "rollout_control_steps_per_second": 9000.0, "when": "2026-12-05 12:00 UTC",
+             "float_path": {"torch": "aaa", "mujoco": "bbb"}}
+    said = []
+    for torch_hash in ("aaa", "aaa", "ccc", "ccc"):  # a first record, the same path, torch's path moved, again
+        write_record(root, root / "record", readme=False, speed=speed | {"float_path": {"torch": torch_hash,
+                                                                                       "mujoco": "bbb"}})
+        said.append("float path: torch rounds otherwise" in capsys.readouterr().out)
+    assert said == [False, False, True, False]
+
+
 def test_the_readmes_time_table_is_the_records_generated_one():
     readme = (ROOT / "README.md").read_text()
     assert readme_with_timings(readme, RECORD) == readme, "rerun `python scripts/record.py`"
@@ -106,6 +125,8 @@ def test_the_speed_probe_measures_every_rate_it_quotes():
     rates = [v for k, v in result.items() if k.endswith("_per_second")]
     assert len(rates) == 3 and all(r > 0 for r in rates)
     assert "updates/s" in summary(result) and result["machine"]["cpus"] >= 1
+    assert set(result["float_path"]) == {"torch_updates", "torch_acting", "mujoco"}
+    assert "float path torch_updates " in summary(result)
 
 
 def test_a_stage_the_pipeline_no_longer_defines_leaves_dvc_lock_before_recording(tmp_path):
