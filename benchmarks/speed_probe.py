@@ -11,7 +11,7 @@ kinds of work at fixed sizes that never follow a profile (so probes of different
 - ``rollout_control_steps_per_second``: 10 walkers stepped together under one batched policy, 1 thread.
 
 Each rate is the median of 3 timed blocks after a warm-up block (bench_rates.per_second). Beside the
-rates, ``float_path`` holds the machine's float-path fingerprint (benchmarks/float_path.py): two
+rates, ``float_path`` holds the machine's float-path fingerprint (mop_core/float_path.py): two
 records whose fingerprints differ were computed with other rounding, so their numbers differ too.
 ``scripts/record.py`` runs it after a study and stores it beside the record (``speed_probe.json``);
 the README's time table quotes it.
@@ -35,7 +35,6 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_pbrl import random_batch  # noqa: E402
 from bench_rates import per_second  # noqa: E402
-from float_path import float_path  # noqa: E402
 
 from mop_core.agents.pbrl import PBRLConfig  # noqa: E402
 from mop_core.agents.pbrl_group import PBRLGroup, stack_batches  # noqa: E402
@@ -43,6 +42,7 @@ from mop_core.agents.td3 import TD3, TD3Config  # noqa: E402
 from mop_core.config import from_mapping  # noqa: E402
 from mop_core.distill.checkpoint import student_policy  # noqa: E402
 from mop_core.distill.student import Student, StudentConfig  # noqa: E402
+from mop_core.float_path import float_path  # noqa: E402
 from mop_core.learning.runtime import configure_compute  # noqa: E402
 from mop_core.storage.timings import machine_facts  # noqa: E402
 from mop_core.walker.rollout import episode_returns  # noqa: E402

@@ -30,10 +30,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from float_path import differs  # noqa: E402
 from speed_probe import probe, summary  # noqa: E402
 
 from mop_cluster.worker import drop_lock_entries  # noqa: E402
+from mop_core.float_path import differs  # noqa: E402
 from mop_core.storage.timings import stage_time_table  # noqa: E402
 
 PROBE = "speed_probe.json"
@@ -155,7 +155,7 @@ def write_record(root: Path, record: Path, readme: bool = True, speed: dict | No
     parted = differs(speed.get("float_path", {}), replaced.get("float_path"))
     if parted:
         print(f"float path: {', '.join(parted)} rounds otherwise than on the replaced record's machine "
-              "(benchmarks/float_path.py): results differ from it for that reason too")
+              "(mop_core/float_path.py): results differ from it for that reason too")
     problems = check_record(staging)
     if problems:
         shutil.rmtree(staging)

@@ -7,7 +7,8 @@ Outputs: data/behaviour/<task>/{medium,expert}.pt, data/datasets/<task>-<level>.
 results/collect/datasets/<task>-<level>.json (readable with `dvc metrics show <path>`),
 results/collect/curves/<task>.tsv
 (dvc plots), results/collect/metrics.json (snapshot returns, the uniformly random policy's return
-R_random of the normalised scores) and results/timings/collect.json (seconds per task, the machine).
+R_random of the normalised scores) and results/timings/collect.json (seconds per task, the machine and
+its float path: mop_core/float_path.py).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from common import load_params, run_stage
 from mop_core.collect import collect_configs, collect_metrics, collect_tasks, collect_timing
 from mop_core.data import write_json
 from mop_core.experiment.study import study_config, study_device
+from mop_core.float_path import float_path
 from mop_core.learning.runtime import progress_enabled
 from mop_core.storage.layout import COLLECT_METRICS, collect_paths, timing_file
 from mop_core.storage.timings import write_timing
@@ -35,7 +37,8 @@ def main() -> None:
                               study.cuda_matmul)
     write_json(COLLECT_METRICS, collect_metrics(summaries))
     write_timing(timing_file("collect"), time.perf_counter() - started, device, tasks=collect_timing(summaries),
-                 workers=parallel.workers, threads_per_worker=parallel.threads_per_worker)
+                 workers=parallel.workers, threads_per_worker=parallel.threads_per_worker,
+                 float_path=float_path())  # this machine's rounding: other machines may train other data
     for task, s in summaries.items():
         print(f"{task}: medium {s['snapshots']['medium']['return_mean']:.1f} "
               f"expert {s['snapshots']['expert']['return_mean']:.1f} random {s['random']['return_mean']:.1f} "

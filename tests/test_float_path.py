@@ -1,15 +1,13 @@
-"""The float-path fingerprint (benchmarks/float_path.py) names the library path whose rounding moved."""
+"""The float-path fingerprint (mop_core/float_path.py) names the library path whose rounding moved."""
 
 import json
 import os
 import subprocess
 import sys
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
+import torch
 
-from float_path import differs, float_path  # noqa: E402
+from mop_core.float_path import differs, float_path
 
 
 def test_each_kernel_switch_moves_only_the_hashes_of_what_it_computes():
@@ -17,11 +15,12 @@ def test_each_kernel_switch_moves_only_the_hashes_of_what_it_computes():
     MKL's reproducible small-matrix path (MKL_CBWR=AVX2) only the actions; neither touches the physics.
     The same process repeats its own fingerprint."""
     switches = {"ATEN_CPU_CAPABILITY": "default", "MKL_CBWR": "AVX2"}
-    runs = {name: subprocess.Popen([sys.executable, str(ROOT / "benchmarks" / "float_path.py")],
+    runs = {name: subprocess.Popen([sys.executable, "-m", "mop_core.float_path"],
                                    env=os.environ | {name: value}, stdout=subprocess.PIPE, text=True)
             for name, value in switches.items()}
+    torch.set_num_threads(2)
     ours = float_path()
-    assert ours == float_path() and all(len(digest) == 12 for digest in ours.values())
+    assert torch.get_num_threads() == 2 and ours == float_path() and all(len(digest) == 12 for digest in ours.values())
     theirs = {name: json.loads(run.communicate()[0]) for name, run in runs.items()}
     assert differs(ours, theirs["ATEN_CPU_CAPABILITY"]) == ["torch_acting", "torch_updates"], (ours, theirs)
     assert differs(ours, theirs["MKL_CBWR"]) == ["torch_acting"], (ours, theirs)

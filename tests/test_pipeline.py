@@ -19,6 +19,7 @@ import torch
 import yaml
 from conftest import ROOT, TEST_DEVICE
 
+from mop_core.float_path import float_path
 from mop_core.learning.runtime import available_cores
 
 sys.path.insert(0, str(ROOT / "scripts"))
@@ -196,6 +197,8 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
                         weights_only=False)["distill_config"]
     assert config["ranking"]["loss"] == "pairwise"
     assert not list((repo / "data" / "resume").glob("*"))  # finished runs leave no resume files
+    # the machine's float path beside collect's seconds: the suite's machine, so this process's own
+    assert json.loads((repo / "results/timings/collect.json").read_text())["float_path"] == float_path()
     evaluation = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
     for task in ("stand", "walk"):
         for group in ("behaviour_expert", "teacher_medium_deterministic", "multitask_medium", "student_mse_medium",

@@ -18,31 +18,27 @@ Each entry hashes what one library computed, so two machines' probes say *where*
   observation and reward (dm_control's numpy reward) of every step.
 
 Equal hashes mean the same rounding in these computations, not a proof that the whole study
-matches; a different hash means the study's numbers will differ from the other machine's.
+matches; a different hash means the study's numbers will differ from the other machine's. Every hash
+is of CPU work: where collect trains on a GPU (its timing record's ``device``), the card rounds the
+TD3 updates, and the ``mujoco`` entry still holds for the walkers.
 
-Run: ``python benchmarks/float_path.py`` (about a second); ``speed_probe.py`` records it.
+Run: ``python -m mop_core.float_path`` (about a second). The collect stage's timing record and every
+speed probe (benchmarks/speed_probe.py) carry it.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-import sys
-from pathlib import Path
 
 import numpy as np
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
-
-from bench_pbrl import random_batch  # noqa: E402
-
-from mop_core.agents.td3 import TD3, TD3Config  # noqa: E402
-from mop_core.config import from_mapping  # noqa: E402
-from mop_core.learning.runtime import configure_compute  # noqa: E402
-from mop_core.walker.envs import WalkerEnv  # noqa: E402
+from mop_core.agents.td3 import TD3, TD3Config
+from mop_core.config import from_mapping
+from mop_core.data.buffer import Batch
+from mop_core.learning.runtime import configure_compute, set_step_threads, step_threads
+from mop_core.walker.envs import WalkerEnv
 
 # frozen: every record's fingerprint hashes the same work
 TD3_NET = {"hidden_sizes": [256, 256], "layer_norm": True, "learning_rate": 1.0e-3, "batch_size": 128}
@@ -59,12 +55,19 @@ def _digest(arrays) -> str:
     return h.hexdigest()[:DIGITS]
 
 
+def _batch(rows: int, seed: int) -> Batch:
+    """A fixed random minibatch (24-d observations, 6-d actions, as the walker's)."""
+    g = torch.Generator().manual_seed(seed)
+    return Batch(torch.randn(rows, 24, generator=g), torch.rand(rows, 6, generator=g) * 2 - 1,
+                 torch.rand(rows, generator=g), torch.randn(rows, 24, generator=g), torch.zeros(rows))
+
+
 def torch_hashes() -> dict[str, str]:
     """``torch_updates``: the TD3 learner's weights after ``TD3_UPDATES`` updates on ``BATCHES`` fixed
     batches; ``torch_acting``: its actor's actions for each of ``ACTING_ROWS`` observations."""
     configure_compute(1)
     agent = TD3(from_mapping(TD3Config, TD3_NET, "float path"), 24, 6, 0, torch.device("cpu"))
-    batches = [random_batch(TD3_NET["batch_size"], seed) for seed in range(BATCHES)]
+    batches = [_batch(TD3_NET["batch_size"], seed) for seed in range(BATCHES)]
     for step in range(TD3_UPDATES):
         agent.update(batches[step % BATCHES])
     state = agent.state_dict()
@@ -85,8 +88,14 @@ def mujoco_hash() -> str:
 
 def float_path() -> dict[str, str]:
     """``{"torch_updates": hash, "torch_acting": hash, "mujoco": hash}`` of this machine (the module's
-    docstring)."""
-    return torch_hashes() | {"mujoco": mujoco_hash()}
+    docstring). The process's thread counts are restored afterwards (the hashes use 1 thread, as
+    collect's workers do)."""
+    threads, stepping = torch.get_num_threads(), step_threads()
+    try:
+        return torch_hashes() | {"mujoco": mujoco_hash()}
+    finally:
+        torch.set_num_threads(threads)
+        set_step_threads(stepping)
 
 
 def differs(ours: dict[str, str], theirs: dict[str, str] | None) -> list[str]:
