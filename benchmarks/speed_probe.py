@@ -12,7 +12,7 @@ kinds of work at fixed sizes that never follow a profile (so probes of different
 
 Each rate is the median of 3 timed blocks after a warm-up block (bench_rates.per_second). Beside the
 rates, ``float_path`` holds the machine's float-path fingerprint (mop_core/float_path.py): two
-records whose fingerprints differ were computed with other rounding, so their numbers differ too.
+machines whose fingerprints differ round otherwise, so the same study may give other results on them.
 ``scripts/record.py`` runs it after a study and stores it beside the record (``speed_probe.json``);
 the README's time table quotes it.
 

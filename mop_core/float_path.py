@@ -18,9 +18,10 @@ Each entry hashes what one library computed, so two machines' probes say *where*
   observation and reward (dm_control's numpy reward) of every step.
 
 Equal hashes mean the same rounding in these computations, not a proof that the whole study
-matches; a different hash means the study's numbers will differ from the other machine's. Every hash
-is of CPU work: where collect trains on a GPU (its timing record's ``device``), the card rounds the
-TD3 updates, and the ``mujoco`` entry still holds for the walkers.
+matches; a different hash means the study's numbers may differ from the other machine's (the quick
+profile's did: docs/timings.md). Every hash is of CPU work at these sizes: where collect trains on a
+GPU (its timing record's ``device``) the card rounds the TD3 updates, and other network sizes (the
+thesis profile's) may take other kernels.
 
 Run: ``python -m mop_core.float_path`` (about a second). The collect stage's timing record and every
 speed probe (benchmarks/speed_probe.py) carry it.
@@ -30,6 +31,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+import subprocess
+import sys
 
 import numpy as np
 import torch
@@ -37,7 +40,7 @@ import torch
 from mop_core.agents.td3 import TD3, TD3Config
 from mop_core.config import from_mapping
 from mop_core.data.buffer import Batch
-from mop_core.learning.runtime import configure_compute, set_step_threads, step_threads
+from mop_core.learning.runtime import configure_compute
 from mop_core.walker.envs import WalkerEnv
 
 # frozen: every record's fingerprint hashes the same work
@@ -86,24 +89,29 @@ def mujoco_hash() -> str:
     return _digest(arrays)
 
 
+def measure() -> dict[str, str]:
+    """The fingerprint computed in this process, which it leaves configured as a collect worker
+    (:func:`~mop_core.learning.runtime.configure_compute` with 1 thread: the thread variables,
+    subnormals flushed) with torch's global seed reset: :func:`float_path` runs it in a fresh one."""
+    return torch_hashes() | {"mujoco": mujoco_hash()}
+
+
 def float_path() -> dict[str, str]:
     """``{"torch_updates": hash, "torch_acting": hash, "mujoco": hash}`` of this machine (the module's
-    docstring). The process's thread counts are restored afterwards (the hashes use 1 thread, as
-    collect's workers do)."""
-    threads, stepping = torch.get_num_threads(), step_threads()
-    try:
-        return torch_hashes() | {"mujoco": mujoco_hash()}
-    finally:
-        torch.set_num_threads(threads)
-        set_step_threads(stepping)
+    docstring), measured in a fresh Python process (``python -m mop_core.float_path``, ~3 s with its
+    imports) started like a collect worker, so the caller's settings and random state are untouched."""
+    result = subprocess.run([sys.executable, "-m", "mop_core.float_path"], capture_output=True, text=True)
+    if result.returncode != 0:
+        raise RuntimeError(f"python -m mop_core.float_path failed ({result.returncode}):\n{result.stderr}")
+    return json.loads(result.stdout)
 
 
 def differs(ours: dict[str, str], theirs: dict[str, str] | None) -> list[str]:
-    """The libraries whose hash differs between two fingerprints (none when either is missing)."""
+    """The entries (computations) whose hash differs between two fingerprints (none when either is missing)."""
     if not theirs:
         return []
     return [name for name in sorted(ours) if name in theirs and ours[name] != theirs[name]]
 
 
 if __name__ == "__main__":
-    print(json.dumps(float_path()))
+    print(json.dumps(measure()))

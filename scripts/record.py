@@ -123,6 +123,28 @@ def prune_lock(root: Path) -> list[str]:
     return stale
 
 
+def recorded_float_path(record: Path) -> dict | None:
+    """The float path a record's behaviour data was trained on (collect's timing record), else its speed
+    probe's (the machine that recorded it), else None (records from before mop_core/float_path.py)."""
+    for path in (record / "results" / "timings" / "collect.json", record / PROBE):
+        if path.is_file() and "float_path" in (content := json.loads(path.read_text())):
+            return content["float_path"]
+    return None
+
+
+def float_path_change(new: Path, old: Path) -> str:
+    """One line on whether the new record's machine rounds as the replaced record's did."""
+    ours, theirs = recorded_float_path(new), recorded_float_path(old)
+    if ours is None or theirs is None:
+        return (f"float path: none in the {'new' if ours is None else 'replaced'} record "
+                "(mop_core/float_path.py): cannot say whether the two machines round alike")
+    parted = differs(ours, theirs)
+    if not parted:
+        return "float path: as the replaced record's"
+    return (f"float path: {', '.join(parted)} rounded otherwise than on the replaced record's machine "
+            "(mop_core/float_path.py): its numbers may differ from the replaced record's for that reason alone")
+
+
 def write_record(root: Path, record: Path, readme: bool = True, speed: dict | None = None) -> int:
     """Copy ``root``'s recorded outputs and dvc.lock to ``record`` with the day's speed probe (``speed``;
     None: measure it now); with ``readme``, rewrite README.md's time table from it (the quick profile's
@@ -151,15 +173,11 @@ def write_record(root: Path, record: Path, readme: bool = True, speed: dict | No
     speed = speed or probe()
     (staging / PROBE).write_text(json.dumps(speed, indent=1) + "\n")
     print(f"speed probe ({speed['when']}): {summary(speed)}")
-    replaced = json.loads((record / PROBE).read_text()) if (record / PROBE).is_file() else {}
-    parted = differs(speed.get("float_path", {}), replaced.get("float_path"))
-    if parted:
-        print(f"float path: {', '.join(parted)} rounds otherwise than on the replaced record's machine "
-              "(mop_core/float_path.py): results differ from it for that reason too")
     problems = check_record(staging)
     if problems:
         shutil.rmtree(staging)
         raise SystemExit("error: the copy does not match dvc.lock: " + "; ".join(problems))
+    print(float_path_change(staging, record))
     if record.exists():  # replace the old record only once the new one is complete, keeping the records of
         for nested in record.iterdir():  # other profiles inside it (record/evidence/: a dvc.lock of its own)
             if nested.is_dir() and (nested / "dvc.lock").is_file():

@@ -35,9 +35,10 @@ def main() -> None:
     summaries = collect_tasks([(task, collect_paths(task)) for task in study.tasks], config, study.seed,
                               device, progress_enabled(study.progress), parallel.workers, parallel.threads_per_worker,
                               study.cuda_matmul)
+    seconds = time.perf_counter() - started
     write_json(COLLECT_METRICS, collect_metrics(summaries))
-    write_timing(timing_file("collect"), time.perf_counter() - started, device, tasks=collect_timing(summaries),
-                 workers=parallel.workers, threads_per_worker=parallel.threads_per_worker,
+    write_timing(timing_file("collect"), seconds, device, tasks=collect_timing(summaries), workers=parallel.workers,
+                 threads_per_worker=parallel.threads_per_worker,
                  float_path=float_path())  # this machine's rounding: other machines may train other data
     for task, s in summaries.items():
         print(f"{task}: medium {s['snapshots']['medium']['return_mean']:.1f} "

@@ -197,7 +197,7 @@ def test_repro_produces_datasets_teachers_and_metrics(repo):
                         weights_only=False)["distill_config"]
     assert config["ranking"]["loss"] == "pairwise"
     assert not list((repo / "data" / "resume").glob("*"))  # finished runs leave no resume files
-    # the machine's float path beside collect's seconds: the suite's machine, so this process's own
+    # the machine's float path beside collect's seconds (mop_core/float_path.py): this machine's
     assert json.loads((repo / "results/timings/collect.json").read_text())["float_path"] == float_path()
     evaluation = json.loads((repo / "results" / "eval" / "metrics.json").read_text())
     for task in ("stand", "walk"):

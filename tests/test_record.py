@@ -5,6 +5,7 @@ sit in git."""
 
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
 import sys
@@ -47,23 +48,28 @@ def test_recording_the_quick_study_again_keeps_another_profiles_record_inside_it
     assert not (root / "record" / "stale.txt").exists()
 
 
-def test_a_new_record_on_another_float_path_says_which_library_parted(tmp_path, capsys):
+def test_a_new_record_says_whether_its_machine_rounds_as_the_replaced_ones(tmp_path, capsys):
+    """collect's timing record names the machine that trained the data (the probe's, where it has none)."""
     from record import write_record
 
     root = tmp_path / "project"
-    (root / "results").mkdir(parents=True)
-    (root / "results" / "a.txt").write_text("a\n")
-    lock = {"stages": {"s": {"outs": [{"path": "results/a.txt", "md5": output_md5(root / "results" / "a.txt")}]}}}
-    (root / "dvc.lock").write_text(yaml.safe_dump(lock))
+    timing = root / "results" / "timings" / "collect.json"
+    timing.parent.mkdir(parents=True)
     speed = {"td3_updates_per_second": 150.0, "pbrl_group_updates_per_second": 40.0,
              "rollout_control_steps_per_second": 9000.0, "when": "2026-12-05 12:00 UTC",
-             "float_path": {"torch": "aaa", "mujoco": "bbb"}}
+             "float_path": {"torch_updates": "probe", "mujoco": "probe"}}
     said = []
-    for torch_hash in ("aaa", "aaa", "ccc", "ccc"):  # a first record, the same path, torch's path moved, again
-        write_record(root, root / "record", readme=False, speed=speed | {"float_path": {"torch": torch_hash,
-                                                                                       "mujoco": "bbb"}})
-        said.append("float path: torch rounds otherwise" in capsys.readouterr().out)
-    assert said == [False, False, True, False]
+    for trained in ("aaa", "aaa", "ccc", None):  # the first record, the same path, torch's moved, no fingerprint
+        timing.write_text(json.dumps({"seconds": 1.0} | ({"float_path": {"torch_updates": trained, "mujoco": "b"}}
+                                                          if trained else {})))
+        lock = {"stages": {"collect": {"outs": [{"path": "results/timings/collect.json", "md5": output_md5(timing)}]}}}
+        (root / "dvc.lock").write_text(yaml.safe_dump(lock))
+        write_record(root, root / "record", readme=False, speed=speed)
+        said.append(next(line for line in capsys.readouterr().out.splitlines() if line.startswith("float path:")))
+    assert said[0].startswith("float path: none in the replaced record")
+    assert said[1] == "float path: as the replaced record's"
+    assert said[2].startswith("float path: torch_updates rounded otherwise")
+    assert said[3].startswith("float path: mujoco, torch_updates rounded otherwise")  # the new probe's
 
 
 def test_the_readmes_time_table_is_the_records_generated_one():
