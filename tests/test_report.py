@@ -7,6 +7,7 @@ from __future__ import annotations
 import re
 import tempfile
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -269,3 +270,15 @@ def test_the_header_says_when_the_study_multiplies_in_tf32(tiny_params):
     assert settings(tf32)["summary"].endswith("; CUDA float32 matmuls in TF32 (study.cuda_matmul: faster and coarser "
                                               "than fp32, no effect on a CPU; benchmarks/tf32_check.py compares a "
                                               "study with its fp32 twin)")
+
+
+def test_the_header_names_what_no_interval_covers(tiny_params):
+    """The intervals vary training seeds only: the header says the behaviour data and the students' teacher
+    seed are held fixed, and where the machine's float path is written."""
+    from mop_core.report.document import header
+    from mop_core.report.load import settings
+
+    params = {**tiny_params, "distill": {**tiny_params["distill"], "teacher_seed": 2}}
+    text = header(SimpleNamespace(settings=settings(params), tasks=["stand", "walk"], levels=["medium"]))
+    assert "**What no interval covers.**" in text and "(train_teachers seed 2)" in text
+    assert "one TD3 run per task" in text and "results/timings/collect.json" in text

@@ -62,7 +62,12 @@ def header(results: StudyResults) -> str:
              "reaches below (too few runs for it). Aggregates (section 6) are rliable's: each run scored by its mean "
              "over its episodes, stratified-bootstrap intervals over runs, none under 3 runs. Learning-curve bands "
              "are over training seeds and drawn only with >= 3 seeds. Every return shown for a policy is the eval "
-             "stage's.", ""]
+             "stage's.", "",
+             "**What no interval covers.** Training seeds vary within a group; the behaviour data (one TD3 run per "
+             f"task: collect) and the teachers students learn from (train_teachers seed {s.get('teacher_seed', '?')}) "
+             "do not. Another behaviour run trains other data, and so does this commit on a machine that rounds "
+             "otherwise (the float path in results/timings/collect.json; docs/timings.md, 'Float paths'); a verdict "
+             "may move with them.", ""]
     lines += ["Stage times are in results/timings/ (`python -m mop_core.storage.timings` prints the table), not here: "
               "a rerun that reproduces the results leaves this report unchanged.", ""]
     return "\n".join(lines)
