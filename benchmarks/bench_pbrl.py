@@ -35,7 +35,7 @@ from timing import rate
 from mop_core.agents.pbrl import PBRL, PBRLConfig
 from mop_core.agents.pbrl_group import PBRLGroup, stack_batches
 from mop_core.config import from_mapping
-from mop_core.data import Batch
+from mop_core.float_path import random_batch
 from mop_core.learning.nn import EnsembleCritic, adam, per_member_forward
 from mop_core.learning.runtime import configure_compute, set_threads
 
@@ -45,12 +45,6 @@ ROOT = Path(__file__).resolve().parents[1]
 def pbrl_config(profile: Path) -> PBRLConfig:
     raw = dict(yaml.safe_load(profile.read_text())["train_teachers"]["pbrl"])
     return from_mapping(PBRLConfig, raw, "train_teachers.pbrl")
-
-
-def random_batch(n: int, seed: int = 0) -> Batch:
-    g = torch.Generator().manual_seed(seed)
-    return Batch(torch.randn(n, 24, generator=g), torch.rand(n, 6, generator=g) * 2 - 1, torch.rand(n, generator=g),
-                 torch.randn(n, 24, generator=g), torch.zeros(n))
 
 
 def update_flops(c: PBRLConfig) -> float:

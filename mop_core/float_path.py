@@ -58,8 +58,9 @@ def _digest(arrays) -> str:
     return h.hexdigest()[:DIGITS]
 
 
-def _batch(rows: int, seed: int) -> Batch:
-    """A fixed random minibatch (24-d observations, 6-d actions, as the walker's)."""
+def random_batch(rows: int, seed: int = 0) -> Batch:
+    """A fixed random minibatch (24-d observations, 6-d actions, as the walker's): the fingerprint's and
+    the benchmarks' (benchmarks/bench_pbrl.py, speed_probe.py)."""
     g = torch.Generator().manual_seed(seed)
     return Batch(torch.randn(rows, 24, generator=g), torch.rand(rows, 6, generator=g) * 2 - 1,
                  torch.rand(rows, generator=g), torch.randn(rows, 24, generator=g), torch.zeros(rows))
@@ -70,7 +71,7 @@ def torch_hashes() -> dict[str, str]:
     batches; ``torch_acting``: its actor's actions for each of ``ACTING_ROWS`` observations."""
     configure_compute(1)
     agent = TD3(from_mapping(TD3Config, TD3_NET, "float path"), 24, 6, 0, torch.device("cpu"))
-    batches = [_batch(TD3_NET["batch_size"], seed) for seed in range(BATCHES)]
+    batches = [random_batch(TD3_NET["batch_size"], seed) for seed in range(BATCHES)]
     for step in range(TD3_UPDATES):
         agent.update(batches[step % BATCHES])
     state = agent.state_dict()
